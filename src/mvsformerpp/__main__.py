@@ -1,0 +1,5 @@
+import sys
+
+from mvsformerpp.cli import main
+
+sys.exit(main())

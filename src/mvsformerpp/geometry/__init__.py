@@ -1,0 +1,1 @@
+"""Cameras, projection, warping and pixel conventions, written down once."""

@@ -1,0 +1,112 @@
+"""The in-memory scene: the one currency between readers, inference, fusion and evaluation.
+
+Conventions (written once, used everywhere):
+* ``K`` is the 3x3 pinhole intrinsic matrix for the image at ``(width, height)`` pixels, as the
+  source format gives it; :mod:`mvsformerpp.geometry` says which pixel convention each computation
+  uses (integer pixel coordinates for cost-volume warping, pixel centres for fusion).
+* ``R``, ``t`` map world to camera: X_cam = R @ X_world + t.
+* ``depth_min``/``depth_max`` bound the z-depth (camera frame) of the scene seen by the view.
+* ``neighbors`` are indices into ``Scene.views``, best first.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from mvsformerpp.errors import InputError
+
+
+@dataclass
+class View:
+    """One calibrated image."""
+
+    name: str
+    image_path: Path
+    width: int
+    height: int
+    K: np.ndarray  # [3,3] float64
+    R: np.ndarray  # [3,3] float64, world -> camera
+    t: np.ndarray  # [3] float64, world -> camera
+    depth_min: float | None = None
+    depth_max: float | None = None
+    neighbors: list[int] = field(default_factory=list)
+    depth_gt_path: Path | None = None  # ground-truth depth (PFM or similar), where the layout has it
+    mask_path: Path | None = None  # ground-truth validity mask, where the layout has it
+
+    def __post_init__(self) -> None:
+        self.image_path = Path(self.image_path)
+        self.K = np.asarray(self.K, dtype=np.float64).reshape(3, 3)
+        self.R = np.asarray(self.R, dtype=np.float64).reshape(3, 3)
+        self.t = np.asarray(self.t, dtype=np.float64).reshape(3)
+        self.width, self.height = int(self.width), int(self.height)
+        self.neighbors = [int(i) for i in self.neighbors]
+
+    @property
+    def extrinsic(self) -> np.ndarray:
+        """4x4 world-to-camera matrix."""
+        E = np.eye(4)
+        E[:3, :3] = self.R
+        E[:3, 3] = self.t
+        return E
+
+    @property
+    def projection(self) -> np.ndarray:
+        """3x4 matrix K [R | t]."""
+        return self.K @ self.extrinsic[:3]
+
+    @property
+    def center(self) -> np.ndarray:
+        """Camera centre in world coordinates."""
+        return -self.R.T @ self.t
+
+
+@dataclass
+class Scene:
+    """A set of calibrated views with depth ranges and neighbour lists."""
+
+    views: list[View]
+    root: Path | None = None
+    source_format: str = "unknown"
+
+    def __len__(self) -> int:
+        return len(self.views)
+
+    def index(self, name: str) -> int:
+        for i, v in enumerate(self.views):
+            if v.name == name:
+                return i
+        raise KeyError(name)
+
+    def validate(self, require_depth_range: bool = True) -> Scene:
+        """Check the scene is usable for MVS; raise :class:`InputError` naming the problem."""
+        where = self.root
+        if not self.views:
+            raise InputError("the scene has no views", where)
+        n = len(self.views)
+        for i, v in enumerate(self.views):
+            label = f"view {i} ({v.name})"
+            for name, arr in (("K", v.K), ("R", v.R), ("t", v.t)):
+                if not np.all(np.isfinite(arr)):
+                    raise InputError(f"{label}: camera {name} has non-finite values", where)
+            if v.width <= 0 or v.height <= 0:
+                raise InputError(f"{label}: image size {v.width}x{v.height} is not positive", where)
+            if abs(np.linalg.det(v.R) - 1.0) > 1e-3:
+                raise InputError(f"{label}: R is not a rotation (det = {np.linalg.det(v.R):.4f})", where)
+            if v.K[0, 0] <= 0 or v.K[1, 1] <= 0:
+                raise InputError(f"{label}: focal lengths must be positive (K = {v.K.tolist()})", where)
+            bad = [j for j in v.neighbors if not 0 <= j < n or j == i]
+            if bad:
+                raise InputError(f"{label}: neighbour indices {bad} are not other views of the scene", where)
+            if require_depth_range:
+                if v.depth_min is None or v.depth_max is None:
+                    raise InputError(f"{label}: no depth range (give one with --depth-range)", where)
+                if not (np.isfinite(v.depth_min) and np.isfinite(v.depth_max)):
+                    raise InputError(f"{label}: depth range {v.depth_min}..{v.depth_max} is not finite", where)
+                if not 0 < v.depth_min < v.depth_max:
+                    raise InputError(
+                        f"{label}: depth range {v.depth_min}..{v.depth_max} must satisfy 0 < min < max", where
+                    )
+        return self
