@@ -2,6 +2,8 @@ import shutil
 
 import numpy as np
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.middlebury import (
@@ -106,3 +108,14 @@ def test_box_behind_camera_and_parallel_axes():
 
     views = [View(f"{i}", "x.png", 64, 48, np.diag([50, 50, 1.0]), np.eye(3), [i, 0, 0]) for i in range(3)]
     assert geometric_depth_ranges(views) == [None] * 3
+
+
+@settings(max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture])
+@given(st.one_of(st.text(max_size=200), st.text(alphabet="0123456789 .-e\nab²", max_size=300)))
+def test_par_garbage_raises_format_error(tmp_path, text):
+    p = tmp_path / "g_par.txt"
+    p.write_text(text)
+    try:
+        read_par(p)
+    except FormatError:
+        pass

@@ -162,6 +162,8 @@ def _num(tok: str, path: Path, lineno: int, kind=float):
         raise FormatError(f"line {lineno}: {tok!r} is not a valid {kind.__name__}", path) from e
     if kind is float and not np.isfinite(v):
         raise FormatError(f"line {lineno}: non-finite number {tok!r}", path)
+    if kind is int and not -(2**63) <= v < 2**63:
+        raise FormatError(f"line {lineno}: integer {tok!r} is out of range", path)
     return v
 
 
@@ -218,8 +220,9 @@ def read_images_text(path: str | Path) -> dict[int, ColmapImage]:
         pn = lines[i + 1][0] if i + 1 < len(lines) else n
         if len(pts) % 3:
             raise FormatError(f"line {pn}: 2-D points come as 'X Y POINT3D_ID' triples", path)
-        arr = np.array([_num(v, path, pn) for v in pts], dtype=np.float64).reshape(-1, 3)
-        images[iid] = ColmapImage(iid, q, t, cam_id, tok[9], arr[:, :2].copy(), arr[:, 2].astype(np.int64))
+        xys = np.array([_num(v, path, pn) for v in pts[0::3] + pts[1::3]], dtype=np.float64).reshape(2, -1).T
+        ids = np.array([_num(v, path, pn, int) for v in pts[2::3]], dtype=np.int64)
+        images[iid] = ColmapImage(iid, q, t, cam_id, tok[9], np.ascontiguousarray(xys), ids)
         i += 2
     return images
 
