@@ -133,6 +133,16 @@ def test_scene_depth_range_and_neighbours_against_brute_force(tmp_path):
         order = sorted((j for j in range(len(names)) if j != i and S[i, j] > 0), key=lambda j: -S[i, j])[:3]
         assert v.neighbors == order
         np.testing.assert_allclose(v.R, im.R)
+    # The scores themselves, with and without the cache of rays.
+    from mvsformerpp.io.viewselect import pair_scores_from_points
+
+    pids = np.array(sorted(model.points3D))
+    xyz = np.stack([model.points3D[p].xyz for p in pids])
+    ims = sorted(model.images.values(), key=lambda m: m.name)
+    vis = [np.searchsorted(pids, m.point3D_ids[m.point3D_ids >= 0]) for m in ims]
+    centers = np.stack([-m.R.T @ m.tvec for m in ims])
+    for cache_bytes in (0, 1 << 30):
+        np.testing.assert_allclose(pair_scores_from_points(centers, xyz, vis, cache_bytes), S, rtol=1e-9)
 
 
 def test_depth_range_helper():
