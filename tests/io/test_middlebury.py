@@ -55,8 +55,11 @@ def test_temple_neighbours_follow_the_ring():
     scene = load_middlebury_scene(TEMPLE / "templeSR_par.txt")
     pos = ring_positions()
     for v in scene.views:
-        assert len(v.neighbors) == 10 and len(set(v.neighbors)) == 10
         ang = {w.name: np.degrees(np.arccos(np.clip(pos[v.name] @ pos[w.name], -1, 1))) for w in scene.views}
+        assert 4 <= len(v.neighbors) <= 10 and len(set(v.neighbors)) == len(v.neighbors)
+        # Ring positions more than 90 degrees away are never neighbours (angle at the object centre,
+        # close to the angle between ring positions for this near-spherical capture).
+        assert all(ang[scene.views[j].name] < 100 for j in v.neighbors)
         distinct = [a for n, a in ang.items() if n != v.name and a > 2.0]  # 0001 and 0011 are the same place
         best = scene.views[v.neighbors[0]].name
         assert ang[best] <= min(distinct) + 0.5

@@ -21,7 +21,7 @@ file does not say), so ``depth_max = DEPTH_MIN + DEPTH_INTERVAL * (DEPTH_NUM - 1
 The two-number line is ambiguous: ``425 2.5`` (DTU) is min + interval, ``0.5 12.0`` (several newer
 converters) is min + max. ``depth_format="auto"`` reads it as min + max exactly when the second
 number is larger than the first: as an interval that would put the last of 192 planes beyond
-193 x DEPTH_MIN (a depth range spanning more than two orders of magnitude, which no MVS cam file
+192 x DEPTH_MIN (a depth range spanning more than two orders of magnitude, which no MVS cam file
 describes), while as a maximum it is a valid range. Otherwise it is min + interval (a maximum
 below the minimum is impossible). ``depth_format="interval"`` or ``"max"`` forces either reading;
 ``"none"`` ignores the depth line.

@@ -18,6 +18,8 @@ import numpy as np
 THETA0_DEG = 5.0
 SIGMA1_DEG = 1.0
 SIGMA2_DEG = 10.0
+# Camera-only selection (no points): pairs seen from further apart than this are not neighbours.
+MAX_CAMERA_ANGLE_DEG = 90.0
 
 
 def triangulation_angle_score(theta_deg: np.ndarray) -> np.ndarray:
@@ -116,7 +118,8 @@ def neighbors_from_cameras(
     Heuristic: the scene centre is taken as the point closest to all optical axes
     (:func:`point_closest_to_axes`) and the pair score is G(angle at that point), i.e. the MVSNet
     score with one shared point. When that point is ill-posed (parallel axes), the angle between the
-    viewing directions stands in for the triangulation angle.
+    viewing directions stands in for the triangulation angle. Pairs more than 90 degrees apart are
+    not neighbours.
     """
     C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     D = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
@@ -132,6 +135,7 @@ def neighbors_from_cameras(
                 theta = ray_angle_deg(X, C[i], C[j])
             else:
                 theta = np.degrees(np.arccos(np.clip(D[i] @ D[j], -1.0, 1.0)))
-            # Floor at a tiny positive value so that every other view stays a (low-ranked) candidate.
-            scores[i, j] = max(float(triangulation_angle_score(theta)), 1e-12)
+            # Views more than MAX_CAMERA_ANGLE_DEG apart rarely see the same side of a surface.
+            if theta <= MAX_CAMERA_ANGLE_DEG:
+                scores[i, j] = float(triangulation_angle_score(theta))
     return top_neighbors(scores, k)
