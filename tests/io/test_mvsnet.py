@@ -239,6 +239,10 @@ def test_scene_without_pair_gets_geometric_neighbours(tmp_path):
     root = make_dtu_mvsnet(tmp_path / "scene", pair=False)
     scene = load_mvsnet_scene(root)
     assert scene.views[0].neighbors == [1] and scene.views[1].neighbors == [0]
+    # A pair.txt kept in cams/ is found too.
+    write_pair(root / "cams" / "pair.txt", {0: [], 1: [(0, 1.0)]})
+    scene = load_mvsnet_scene(root)
+    assert scene.views[0].neighbors == [] and scene.views[1].neighbors == [0]
 
 
 def test_write_then_load_scene(tmp_path):

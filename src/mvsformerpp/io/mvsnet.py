@@ -348,7 +348,8 @@ def load_mvsnet_scene(
 
     ``root/cams/NNNNNNNN_cam.txt`` define the views (sorted by id); images are ``root/images/NNNNNNNN.*``;
     neighbours come from ``root/pair.txt`` (ids mapped to view indices), or, without one, from the
-    camera geometry (:func:`mvsformerpp.io.viewselect.neighbors_from_cameras`). ``cam_dir``,
+    camera geometry (:func:`mvsformerpp.io.viewselect.neighbors_from_cameras`); ``cams/pair.txt`` is
+    used when there is no ``root/pair.txt``. ``cam_dir``,
     ``image_dir`` and ``pair_path`` override the default locations (absolute or relative to ``root``).
     ``interval_scale`` stretches each depth range about its minimum, as the official loaders do with
     the depth interval (1.06 in the MVSFormer++ test configurations).
@@ -358,6 +359,8 @@ def load_mvsnet_scene(
         raise InputError("not a folder (expected an MVSNet scene with images/, cams/ and pair.txt)", root)
     cam_dir = root / (cam_dir or "cams")
     image_dir = root / (image_dir or "images")
+    if pair_path is None and not (root / "pair.txt").is_file() and (cam_dir / "pair.txt").is_file():
+        pair_path = cam_dir / "pair.txt"  # some releases keep it with the cams
     pair_path = root / (pair_path or "pair.txt")
     if not cam_dir.is_dir():
         raise InputError(f"no camera folder {cam_dir.name}/ (expected NNNNNNNN_cam.txt files)", root)
