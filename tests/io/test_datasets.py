@@ -124,3 +124,23 @@ def test_tanks_and_temples_with_short_range_cameras(tmp_path):
         load_tnt_scene(scene_dir, short_range=True)
     (scene_dir / "cams").rename(scene_dir / "cams_1")
     assert len(load_tnt_scene(scene_dir)) == 3
+
+
+def test_dtu_raw_resolution(tmp_path):
+    root = tmp_path / "dtu"
+    (root / "Rectified_raw" / "scan3").mkdir(parents=True)
+    (root / "Depths_raw" / "scan3").mkdir(parents=True)
+    for i in range(2):
+        write_cam(root / "Cameras" / f"{i:08d}_cam.txt", blended_cam(i))  # K for the photo's own size
+        shutil.copy(DTU_PAIR / f"rect_00{i + 1}_0_r5000.png", root / "Rectified_raw" / "scan3" /
+                    f"rect_00{i + 1}_3_r5000.png")
+        write_pfm(root / "Depths_raw" / "scan3" / f"depth_map_000{i}.pfm", np.ones((512, 640), np.float32))
+        Image.new("L", (640, 512)).save(root / "Depths_raw" / "scan3" / f"depth_visual_000{i}.png")
+    write_pair(root / "Cameras" / "pair.txt", {0: [(1, 1.0)], 1: [(0, 1.0)]})
+    scene = load_dtu_scene(root).validate()  # only raw photos: "auto" picks them
+    assert [v.image_path.parent.name for v in scene.views] == ["scan3", "scan3"]
+    np.testing.assert_array_equal(scene.views[0].K, blended_cam(0).K)
+    assert scene.views[1].mask_path.name == "depth_visual_0001.png"
+    assert scene.views[1].depth_gt_path.parent.parent.name == "Depths_raw"
+    with pytest.raises(InputError, match="no train photos"):
+        load_dtu_scene(root, resolution="train")

@@ -122,3 +122,18 @@ def test_par_garbage_raises_format_error(tmp_path, text):
         read_par(p)
     except FormatError:
         pass
+
+
+def test_temple_converts_to_mvsnet_and_back(tmp_path):
+    from mvsformerpp.io.mvsnet import load_mvsnet_scene, write_mvsnet_scene
+
+    scene = load_middlebury_scene(TEMPLE)
+    write_mvsnet_scene(scene, tmp_path / "mvs")
+    back = load_mvsnet_scene(tmp_path / "mvs")
+    assert len(back) == len(scene)
+    for a, b in zip(scene.views, back.views):
+        np.testing.assert_array_equal(a.K, b.K)
+        np.testing.assert_array_equal(a.extrinsic, b.extrinsic)
+        assert (a.depth_min, a.depth_max) == (b.depth_min, b.depth_max)
+        assert a.neighbors == b.neighbors and (a.width, a.height) == (b.width, b.height)
+        assert a.image_path.read_bytes() == b.image_path.read_bytes()
