@@ -353,7 +353,7 @@ def test_real_sfm_on_temple_matches_middlebury_calibration(tmp_path):
 
     from mvsformerpp.io.middlebury import load_middlebury_scene
 
-    from .conftest import TEMPLE
+    from .fakes import TEMPLE
 
     proj = tmp_path / "proj"
     (proj / "images").mkdir(parents=True)

@@ -6,28 +6,10 @@ from PIL import Image
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.io.datasets import list_dtu_scans, load_blended_scene, load_dtu_scene, load_tnt_scene
-from mvsformerpp.io.mvsnet import MVSNetCam, read_cam, write_cam, write_pair
+from mvsformerpp.io.mvsnet import write_cam, write_pair
 from mvsformerpp.io.pfm import read_pfm, write_pfm
 
-from .conftest import DTU_PAIR
-
-
-def make_dtu(root, scans=("scan1",)):
-    (root / "Cameras" / "train").mkdir(parents=True)
-    for i in range(2):
-        shutil.copy(DTU_PAIR / f"{i:08d}_cam.txt", root / "Cameras" / "train" / f"{i:08d}_cam.txt")
-    # Cams for a position without a photo in this scan (DTU has 64 positions, 49 photos per scan).
-    shutil.copy(DTU_PAIR / "00000000_cam.txt", root / "Cameras" / "train" / "00000005_cam.txt")
-    write_pair(root / "Cameras" / "pair.txt", {0: [(1, 10.0), (5, 1.0)], 1: [(0, 10.0)], 5: [(0, 1.0)]})
-    for scan in scans:
-        img_dir = root / "Rectified" / f"{scan}_train"
-        dep_dir = root / "Depths" / f"{scan}_train"
-        img_dir.mkdir(parents=True)
-        dep_dir.mkdir(parents=True)
-        for i in range(2):
-            shutil.copy(DTU_PAIR / f"rect_00{i + 1}_0_r5000.png", img_dir / f"rect_00{i + 1}_3_r5000.png")
-            shutil.copy(DTU_PAIR / f"depth_map_000{i}.pfm", dep_dir / f"depth_map_000{i}.pfm")
-    return root
+from .fakes import DTU_PAIR, blended_cam, make_dtu
 
 
 def test_dtu_training_layout_with_real_views(tmp_path):
@@ -74,13 +56,6 @@ def test_dtu_scan_choice_and_errors(tmp_path):
         load_dtu_scene(root, scan=1, resolution="raw")
     with pytest.raises(InputError, match="not a DTU"):
         load_dtu_scene(tmp_path)
-
-
-def blended_cam(i):
-    cam = read_cam(DTU_PAIR / f"{i:08d}_cam.txt")
-    cam.K = cam.K.copy()
-    cam.K[:2] *= 4  # full resolution for the 640x512 photos
-    return MVSNetCam(cam.extrinsic, cam.K, depth_min=425.0, depth_max=935.0, num_depth=128)
 
 
 def test_blendedmvs_nested_layout(tmp_path):

@@ -12,9 +12,7 @@ from mvsformerpp.io.detect import detect_layout, load_scene
 from mvsformerpp.io.mvsnet import write_pair
 
 from .colmap_synth import synthetic_model, write_photos
-from .conftest import DTU_PAIR, TEMPLE
-from .test_datasets import make_dtu
-from .test_mvsnet import make_dtu_mvsnet
+from .fakes import DTU_PAIR, TEMPLE, make_dtu, make_dtu_mvsnet
 
 
 def test_detects_every_layout(tmp_path):

@@ -15,7 +15,7 @@ from mvsformerpp.io.middlebury import (
     write_par,
 )
 
-from .conftest import TEMPLE
+from .fakes import TEMPLE
 
 
 def ring_positions():
