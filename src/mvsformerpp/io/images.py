@@ -1,0 +1,71 @@
+"""Photos: decode to RGB uint8, or read only the size from the file header.
+
+Arrays are ``[H, W, 3]`` uint8, RGB, top row first. Grayscale, palette, 16-bit and RGBA/LA
+images are converted (alpha is dropped, not composited).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mvsformerpp.errors import FormatError
+
+# Suffixes recognised as photos when a layout looks images up by stem (lower case).
+IMAGE_SUFFIXES: tuple[str, ...] = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff", ".webp", ".ppm", ".pgm")
+
+
+def _open(path: Path):
+    from PIL import Image, UnidentifiedImageError
+
+    try:
+        return Image.open(path)
+    except FileNotFoundError as e:
+        raise FormatError("image file not found", path) from e
+    except UnidentifiedImageError as e:
+        raise FormatError("not a readable image (unknown or corrupt format)", path) from e
+    except OSError as e:
+        raise FormatError(f"cannot open image ({e})", path) from e
+
+
+def image_size(path: str | Path) -> tuple[int, int]:
+    """Return ``(width, height)`` from the file header, without decoding the pixels."""
+    path = Path(path)
+    with _open(path) as im:
+        return int(im.width), int(im.height)
+
+
+def read_image(path: str | Path) -> np.ndarray:
+    """Decode an image file to uint8 ``[H, W, 3]`` RGB."""
+    path = Path(path)
+    with _open(path) as im:
+        try:
+            if im.mode in ("I;16", "I;16B", "I;16L", "I"):
+                # 16/32-bit grayscale: rescale the full range to 8 bits rather than clip.
+                arr = np.asarray(im, dtype=np.float64)
+                hi = 65535.0 if im.mode.startswith("I;16") else max(float(arr.max()), 1.0)
+                gray = np.clip(np.round(arr / hi * 255.0), 0, 255).astype(np.uint8)
+                return np.ascontiguousarray(np.repeat(gray[:, :, None], 3, axis=2))
+            rgb = im.convert("RGB")
+            return np.asarray(rgb, dtype=np.uint8).copy()
+        except (OSError, ValueError, SyntaxError) as e:
+            raise FormatError(f"cannot decode image ({e}); the file may be truncated or corrupt", path) from e
+
+
+def find_image(folder: str | Path, stem: str) -> Path | None:
+    """Return the photo ``folder/stem.<ext>`` for a known image suffix (any case), or None."""
+    folder = Path(folder)
+    for suffix in IMAGE_SUFFIXES:
+        for cand in (folder / f"{stem}{suffix}", folder / f"{stem}{suffix.upper()}"):
+            if cand.is_file():
+                return cand
+    return None
+
+
+def list_images(folder: str | Path) -> list[Path]:
+    """Photos directly inside ``folder`` (by suffix), sorted by name."""
+    folder = Path(folder)
+    if not folder.is_dir():
+        return []
+    return sorted(p for p in folder.iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)

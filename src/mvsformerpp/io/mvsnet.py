@@ -1,0 +1,441 @@
+"""MVSNet scene layout: ``images/``, ``cams/NNNNNNNN_cam.txt``, ``pair.txt``.
+
+A cam file (Yao et al., MVSNet, ECCV 2018; the layout every learned-MVS code base reads)::
+
+    extrinsic
+    r11 r12 r13 t1          4x4 world-to-camera
+    r21 r22 r23 t2
+    r31 r32 r33 t3
+    0 0 0 1
+
+    intrinsic
+    fx 0 cx                 3x3, for the image the file goes with
+    0 fy cy
+    0 0 1
+
+    DEPTH_MIN DEPTH_INTERVAL [DEPTH_NUM [DEPTH_MAX]]     or    DEPTH_MIN DEPTH_MAX
+
+Depth planes are ``DEPTH_MIN + k * DEPTH_INTERVAL``, k = 0 .. DEPTH_NUM - 1 (192 planes when the
+file does not say), so ``depth_max = DEPTH_MIN + DEPTH_INTERVAL * (DEPTH_NUM - 1)``.
+
+The two-number line is ambiguous: ``425 2.5`` (DTU) is min + interval, ``0.5 12.0`` (several newer
+converters) is min + max. ``depth_format="auto"`` reads it as min + max exactly when the second
+number is larger than the first: as an interval that would put the last of 192 planes beyond
+193 x DEPTH_MIN (a depth range spanning more than two orders of magnitude, which no MVS cam file
+describes), while as a maximum it is a valid range. Otherwise it is min + interval (a maximum
+below the minimum is impossible). ``depth_format="interval"`` or ``"max"`` forces either reading;
+``"none"`` ignores the depth line.
+
+pair.txt::
+
+    N                       number of views
+    ref_id                  then, per view, two lines:
+    M id1 score1 id2 score2 ...
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from mvsformerpp.errors import FormatError, InputError
+from mvsformerpp.io.images import find_image, image_size
+from mvsformerpp.io.scene import Scene, View
+from mvsformerpp.io.viewselect import neighbors_from_cameras
+from mvsformerpp.utils.atomic import atomic_open
+
+log = logging.getLogger(__name__)
+
+DepthFormat = Literal["auto", "interval", "max", "none"]
+DEFAULT_NUM_DEPTH = 192
+_CAM_RE = re.compile(r"^(\d+)_cam\.txt$")
+
+
+@dataclass
+class MVSNetCam:
+    """One parsed cam file.
+
+    ``extrinsic`` [4,4] world-to-camera; ``K`` [3,3]; depth fields are None when the file has no
+    depth line (or ``depth_format="none"``). ``num_depth`` is the plane count the file states, else None.
+    """
+
+    extrinsic: np.ndarray
+    K: np.ndarray
+    depth_min: float | None = None
+    depth_max: float | None = None
+    depth_interval: float | None = None
+    num_depth: int | None = None
+
+    @property
+    def R(self) -> np.ndarray:
+        return self.extrinsic[:3, :3]
+
+    @property
+    def t(self) -> np.ndarray:
+        return self.extrinsic[:3, 3]
+
+
+def _floats(tokens: list[str], path: Path, what: str) -> np.ndarray:
+    try:
+        vals = np.array([float(x) for x in tokens], dtype=np.float64)
+    except ValueError as e:
+        raise FormatError(f"{what}: expected numbers, got {' '.join(tokens)!r}", path) from e
+    if not np.all(np.isfinite(vals)):
+        raise FormatError(f"{what} contains non-finite numbers ({' '.join(tokens)})", path)
+    return vals
+
+
+def _parse_depth(
+    nums: np.ndarray, fmt: DepthFormat, num_depth: int, path: Path
+) -> tuple[float, float, float, int | None]:
+    """(depth_min, depth_max, depth_interval, stated plane count) from the depth line's numbers."""
+    if len(nums) == 1:
+        raise FormatError(
+            f"depth line has only one number ({nums[0]:g}); expected 'DEPTH_MIN DEPTH_INTERVAL', "
+            "'DEPTH_MIN DEPTH_MAX' or 'DEPTH_MIN DEPTH_INTERVAL DEPTH_NUM DEPTH_MAX'",
+            path,
+        )
+    dmin = float(nums[0])
+    stated: int | None = None
+    if len(nums) == 2:
+        second = float(nums[1])
+        if fmt == "auto":
+            fmt = "max" if second > dmin else "interval"
+        if fmt == "max":
+            dmax = second
+            interval = (dmax - dmin) / (num_depth - 1)
+        else:
+            interval = second
+            dmax = dmin + interval * (num_depth - 1)
+    else:
+        interval = float(nums[1])
+        n = float(nums[2])
+        if n < 2 or n != int(n):
+            raise FormatError(f"depth line: DEPTH_NUM must be an integer >= 2, got {n:g}", path)
+        stated = int(n)
+        dmax = float(nums[3]) if len(nums) == 4 else dmin + interval * (stated - 1)
+        if fmt == "max" and len(nums) == 3:
+            raise FormatError("depth_format='max' but the depth line has no DEPTH_MAX", path)
+    if not 0 < dmin < dmax:
+        raise FormatError(
+            f"depth range {dmin:g}..{dmax:g} from the depth line must satisfy 0 < min < max "
+            "(check the file, force depth_format='interval' or 'max', or give the depth range explicitly)",
+            path,
+        )
+    return dmin, dmax, interval, stated
+
+
+def read_cam(path: str | Path, depth_format: DepthFormat = "auto", num_depth: int = DEFAULT_NUM_DEPTH) -> MVSNetCam:
+    """Read an MVSNet ``*_cam.txt`` file (see the module docstring for the format and depth forms).
+
+    ``num_depth`` is the plane count assumed for the two-number forms.
+    """
+    path = Path(path)
+    if depth_format not in ("auto", "interval", "max", "none"):
+        raise ValueError(f"depth_format must be auto, interval, max or none, got {depth_format!r}")
+    if num_depth < 2:
+        raise ValueError(f"num_depth must be >= 2, got {num_depth}")
+    try:
+        text = path.read_bytes().decode("utf-8")
+    except FileNotFoundError as e:
+        raise InputError("camera file not found", path) from e
+    except OSError as e:
+        raise FormatError(f"cannot read camera file ({e.strerror})", path) from e
+    except UnicodeDecodeError as e:
+        raise FormatError("camera file is not text (expected an MVSNet cam file)", path) from e
+    tokens = text.split()
+    lower = [t.lower() for t in tokens]
+    if "extrinsic" not in lower or "intrinsic" not in lower:
+        raise FormatError("not an MVSNet cam file: the 'extrinsic' and 'intrinsic' headers are missing", path)
+    ie, ii = lower.index("extrinsic"), lower.index("intrinsic")
+    if ie != 0 or ii != 17:
+        raise FormatError(
+            "not an MVSNet cam file: expected 'extrinsic', 16 numbers (4x4), 'intrinsic', 9 numbers (3x3), "
+            f"then the depth line; found {ii - ie - 1} numbers after 'extrinsic'",
+            path,
+        )
+    E = _floats(tokens[1:17], path, "extrinsic").reshape(4, 4)
+    body = tokens[18:27]
+    if len(body) < 9:
+        raise FormatError(f"intrinsic: expected 9 numbers (3x3), found {len(body)}", path)
+    K = _floats(body, path, "intrinsic").reshape(3, 3)
+    depth_tokens = tokens[27:]
+    if len(depth_tokens) > 4:
+        raise FormatError(
+            f"depth line: expected 2 to 4 numbers after the intrinsics, found {len(depth_tokens)} tokens", path
+        )
+    if not np.allclose(E[3], [0, 0, 0, 1], atol=1e-6):
+        raise FormatError(f"extrinsic: last row must be 0 0 0 1, got {E[3].tolist()}", path)
+    R = E[:3, :3]
+    if not np.allclose(R.T @ R, np.eye(3), atol=1e-2) or np.linalg.det(R) < 0:
+        raise FormatError("extrinsic: the 3x3 block is not a rotation matrix", path)
+    if not np.allclose(K[2], [0, 0, 1], atol=1e-9) or K[0, 0] <= 0 or K[1, 1] <= 0:
+        raise FormatError(f"intrinsic: expected [[fx,s,cx],[0,fy,cy],[0,0,1]] with fx, fy > 0, got {K.tolist()}", path)
+    cam = MVSNetCam(extrinsic=E, K=K)
+    if depth_tokens and depth_format != "none":
+        nums = _floats(depth_tokens, path, "depth line")
+        cam.depth_min, cam.depth_max, cam.depth_interval, cam.num_depth = _parse_depth(
+            nums, depth_format, num_depth, path
+        )
+    return cam
+
+
+def _num(x: float) -> str:
+    """Shortest text that reads back as exactly the same float."""
+    return repr(float(x))
+
+
+def format_cam(cam: MVSNetCam, num_depth: int = DEFAULT_NUM_DEPTH) -> str:
+    """The cam file text, 4-number depth line ``MIN INTERVAL NUM MAX`` (omitted without a depth range)."""
+    E = np.asarray(cam.extrinsic, dtype=np.float64).reshape(4, 4)
+    K = np.asarray(cam.K, dtype=np.float64).reshape(3, 3)
+    lines = ["extrinsic"]
+    lines += [" ".join(_num(v) for v in row) for row in E]
+    lines += ["", "intrinsic"]
+    lines += [" ".join(_num(v) for v in row) for row in K]
+    lines.append("")
+    if cam.depth_min is not None and cam.depth_max is not None:
+        n = cam.num_depth or num_depth
+        interval = (cam.depth_max - cam.depth_min) / (n - 1)
+        lines.append(f"{_num(cam.depth_min)} {_num(interval)} {n} {_num(cam.depth_max)}")
+    return "\n".join(lines) + "\n"
+
+
+def write_cam(path: str | Path, cam: MVSNetCam, num_depth: int = DEFAULT_NUM_DEPTH) -> None:
+    """Write a cam file atomically (4-number depth line; ``num_depth`` planes unless ``cam`` states one)."""
+    vals = [cam.extrinsic, cam.K] + [v for v in (cam.depth_min, cam.depth_max) if v is not None]
+    if not all(np.all(np.isfinite(np.asarray(v, dtype=np.float64))) for v in vals):
+        raise ValueError(f"refusing to write non-finite camera values to {path}")
+    with atomic_open(path, "w") as f:
+        f.write(format_cam(cam, num_depth))
+
+
+# ---------------------------------------------------------------------------------------------- pair.txt
+
+Pairs = dict[int, list[tuple[int, float]]]
+
+
+def read_pair(path: str | Path) -> Pairs:
+    """Read pair.txt as ``{ref_id: [(src_id, score), ...]}`` in file order (best first by convention)."""
+    path = Path(path)
+    try:
+        tokens = path.read_bytes().decode("utf-8").split()
+    except FileNotFoundError as e:
+        raise InputError("pair file not found", path) from e
+    except OSError as e:
+        raise FormatError(f"cannot read pair file ({e.strerror})", path) from e
+    except UnicodeDecodeError as e:
+        raise FormatError("pair file is not text", path) from e
+    pos = 0
+
+    def take(what: str) -> str:
+        nonlocal pos
+        if pos >= len(tokens):
+            raise FormatError(f"pair file ends early: expected {what}", path)
+        pos += 1
+        return tokens[pos - 1]
+
+    def take_int(what: str) -> int:
+        tok = take(what)
+        try:
+            val = float(tok)
+        except ValueError as e:
+            raise FormatError(f"expected {what} (an integer), got {tok!r}", path) from e
+        if not math.isfinite(val) or val != int(val) or val < 0:
+            raise FormatError(f"expected {what} (a non-negative integer), got {tok!r}", path)
+        return int(val)
+
+    count = take_int("the number of views")
+    pairs: Pairs = {}
+    for k in range(count):
+        ref = take_int(f"the id of view entry {k}")
+        if ref in pairs:
+            raise FormatError(f"view {ref} is listed twice", path)
+        m = take_int(f"the number of source views of view {ref}")
+        srcs = []
+        for _ in range(m):
+            src = take_int(f"a source view id of view {ref}")
+            tok = take(f"the score of source view {src} of view {ref}")
+            try:
+                score = float(tok)
+            except ValueError as e:
+                raise FormatError(f"view {ref}: score {tok!r} of source view {src} is not a number", path) from e
+            if not math.isfinite(score):
+                raise FormatError(f"view {ref}: score of source view {src} is not finite", path)
+            srcs.append((src, score))
+        pairs[ref] = srcs
+    if pos != len(tokens):
+        raise FormatError(f"unexpected text after {count} view entries: {' '.join(tokens[pos:pos + 5])!r}", path)
+    return pairs
+
+
+def format_pair(pairs: Pairs) -> str:
+    lines = [str(len(pairs))]
+    for ref, srcs in pairs.items():
+        lines.append(str(int(ref)))
+        lines.append(" ".join([str(len(srcs))] + [f"{int(s)} {_num(sc)}" for s, sc in srcs]))
+    return "\n".join(lines) + "\n"
+
+
+def write_pair(path: str | Path, pairs: Pairs) -> None:
+    """Write pair.txt atomically from ``{ref_id: [(src_id, score), ...]}``."""
+    for ref, srcs in pairs.items():
+        for s, sc in srcs:
+            if not math.isfinite(float(sc)):
+                raise ValueError(f"view {ref}: score of source {s} is not finite")
+    with atomic_open(path, "w") as f:
+        f.write(format_pair(pairs))
+
+
+# ---------------------------------------------------------------------------------------------- scene
+
+
+def cam_files(cam_dir: str | Path) -> dict[int, Path]:
+    """``{view_id: path}`` for the ``NNNNNNNN_cam.txt`` files in ``cam_dir``."""
+    out = {}
+    for p in Path(cam_dir).iterdir():
+        m = _CAM_RE.match(p.name)
+        if m and p.is_file():
+            out[int(m.group(1))] = p
+    return dict(sorted(out.items()))
+
+
+def match_image_size(K: np.ndarray, width: int, height: int, where: Path) -> np.ndarray:
+    """Return ``K`` for an image of ``width x height``, resolving an exact integer scale factor.
+
+    A cam file does not state its image size; its principal point does, roughly. ``K`` is accepted as
+    is when (cx, cy) lies in the central 60% of the image. Otherwise, of the integer factors s = 2..8 and
+    1/s, the one putting s * (cx, cy) nearest the image centre is taken if that is within 15% of the
+    image size: ``K[:2] *= s`` (the MVSNet
+    convention for resized images; integer pixel coordinates) and a warning names the factor.
+    Anything else raises :class:`InputError`.
+    """
+    cx, cy = K[0, 2], K[1, 2]
+
+    def off_centre(s: float) -> float:
+        return max(abs(s * cx / width - 0.5), abs(s * cy / height - 0.5))
+
+    if off_centre(1.0) <= 0.3:
+        return K
+    factors = [float(v) for v in range(2, 9)] + [1.0 / v for v in range(2, 9)]
+    best = min(factors, key=off_centre)
+    if off_centre(best) <= 0.15:
+        Ks = K.copy()
+        Ks[:2] *= best
+        log.warning(
+            "%s: camera intrinsics are for an image %s the size of the %dx%d photo; scaled K by %g",
+            where, f"1/{best:g}" if best > 1 else f"{1 / best:g}x", width, height, best,
+        )
+        return Ks
+    raise InputError(
+        f"the camera's principal point ({cx:g}, {cy:g}) does not fit the {width}x{height} image, nor any "
+        "integer rescaling of it: the photo and the camera file do not belong together (resize the "
+        "photo to the resolution the camera was calibrated for)",
+        where,
+    )
+
+
+def load_mvsnet_scene(
+    root: str | Path,
+    depth_format: DepthFormat = "auto",
+    num_depth: int = DEFAULT_NUM_DEPTH,
+    interval_scale: float = 1.0,
+    cam_dir: str | Path | None = None,
+    image_dir: str | Path | None = None,
+    pair_path: str | Path | None = None,
+    num_neighbors: int = 10,
+) -> Scene:
+    """Load an MVSNet-layout scene folder.
+
+    ``root/cams/NNNNNNNN_cam.txt`` define the views (sorted by id); images are ``root/images/NNNNNNNN.*``;
+    neighbours come from ``root/pair.txt`` (ids mapped to view indices), or, without one, from the
+    camera geometry (:func:`mvsformerpp.io.viewselect.neighbors_from_cameras`). ``cam_dir``,
+    ``image_dir`` and ``pair_path`` override the default locations (absolute or relative to ``root``).
+    ``interval_scale`` stretches each depth range about its minimum, as the official loaders do with
+    the depth interval (1.06 in the MVSFormer++ test configurations).
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError("not a folder (expected an MVSNet scene with images/, cams/ and pair.txt)", root)
+    cam_dir = root / (cam_dir or "cams")
+    image_dir = root / (image_dir or "images")
+    pair_path = root / (pair_path or "pair.txt")
+    if not cam_dir.is_dir():
+        raise InputError(f"no camera folder {cam_dir.name}/ (expected NNNNNNNN_cam.txt files)", root)
+    cams = cam_files(cam_dir)
+    if not cams:
+        raise InputError("the camera folder holds no NNNNNNNN_cam.txt files: the scene is empty", cam_dir)
+    if not image_dir.is_dir():
+        raise InputError(f"no image folder {image_dir.name}/", root)
+    views: list[View] = []
+    for vid, cam_path in cams.items():
+        cam = read_cam(cam_path, depth_format=depth_format, num_depth=num_depth)
+        stem = f"{vid:08d}"
+        img = find_image(image_dir, stem) or find_image(image_dir, str(vid))
+        if img is None:
+            raise InputError(f"no image for camera {cam_path.name} (looked for {stem}.jpg/.png/...)", image_dir)
+        w, h = image_size(img)
+        K = match_image_size(cam.K, w, h, img)
+        dmin, dmax = cam.depth_min, cam.depth_max
+        if dmin is not None and dmax is not None and interval_scale != 1.0:
+            dmax = dmin + (dmax - dmin) * interval_scale
+        views.append(View(name=stem, image_path=img, width=w, height=h, K=K, R=cam.R, t=cam.t,
+                          depth_min=dmin, depth_max=dmax))
+    index = {vid: i for i, vid in enumerate(cams)}
+    if pair_path.is_file():
+        pairs = read_pair(pair_path)
+        for ref, srcs in pairs.items():
+            missing = [v for v in [ref] + [s for s, _ in srcs] if v not in index]
+            if missing:
+                raise InputError(
+                    f"pair file references view(s) {sorted(set(missing))} that have no camera in {cam_dir.name}/",
+                    pair_path,
+                )
+            views[index[ref]].neighbors = [index[s] for s, _ in srcs if s != ref]
+    else:
+        log.info("%s: no pair.txt; choosing neighbours from the camera geometry", root)
+        centers = np.stack([v.center for v in views])
+        dirs = np.stack([v.R[2] for v in views])
+        for v, nb in zip(views, neighbors_from_cameras(centers, dirs, num_neighbors)):
+            v.neighbors = [j for j, _ in nb]
+    return Scene(views=views, root=root, source_format="mvsnet")
+
+
+def write_mvsnet_scene(
+    scene: Scene,
+    root: str | Path,
+    copy_images: bool = True,
+    num_depth: int = DEFAULT_NUM_DEPTH,
+    scores: list[list[float]] | None = None,
+) -> Path:
+    """Write ``scene`` as ``root/{images,cams}/`` + ``root/pair.txt``; view i gets id i.
+
+    Images are copied byte for byte (keeping their suffix) unless ``copy_images`` is False. The Scene
+    keeps neighbour order, not scores: pair.txt gets ``scores`` when given, else the rank-based
+    scores M, M-1, ..., 1 (higher is better, as in MVSNet pair files).
+    """
+    root = Path(root)
+    if not scene.views:
+        raise InputError("the scene has no views; nothing to write", root)
+    (root / "cams").mkdir(parents=True, exist_ok=True)
+    pairs: Pairs = {}
+    for i, v in enumerate(scene.views):
+        cam = MVSNetCam(extrinsic=v.extrinsic, K=v.K, depth_min=v.depth_min, depth_max=v.depth_max)
+        write_cam(root / "cams" / f"{i:08d}_cam.txt", cam, num_depth)
+        if copy_images:
+            dst = root / "images" / f"{i:08d}{v.image_path.suffix.lower()}"
+            if v.image_path.resolve() != dst.resolve():
+                with atomic_open(dst, "wb") as f, open(v.image_path, "rb") as src:
+                    shutil.copyfileobj(src, f)
+        m = len(v.neighbors)
+        sc = scores[i] if scores is not None else [float(m - r) for r in range(m)]
+        pairs[i] = list(zip(v.neighbors, sc))
+    write_pair(root / "pair.txt", pairs)
+    return root

@@ -1,0 +1,121 @@
+"""View selection: which source views go with each reference view.
+
+The score is the MVSNet / colmap2mvsnet triangulation-angle score (Yao et al., MVSNet, ECCV 2018,
+section 4.1): for views i, j and a 3-D point p seen by both, with theta the angle between the
+rays p->C_i and p->C_j (degrees),
+
+    G(theta) = exp(-(theta - theta0)^2 / (2 sigma1^2))  if theta <= theta0   (sigma1 = 1)
+               exp(-(theta - theta0)^2 / (2 sigma2^2))  otherwise            (sigma2 = 10)
+
+with theta0 = 5 degrees, and the pair score is the sum of G over the points both views see.
+Neighbours are the best-scoring views (top 10 by default), best first, views with score 0 left out.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+THETA0_DEG = 5.0
+SIGMA1_DEG = 1.0
+SIGMA2_DEG = 10.0
+
+
+def triangulation_angle_score(theta_deg: np.ndarray) -> np.ndarray:
+    """The piecewise Gaussian G(theta) above, elementwise on angles in degrees."""
+    theta = np.asarray(theta_deg, dtype=np.float64)
+    sigma = np.where(theta <= THETA0_DEG, SIGMA1_DEG, SIGMA2_DEG)
+    return np.exp(-((theta - THETA0_DEG) ** 2) / (2.0 * sigma**2))
+
+
+def ray_angle_deg(point: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
+    """Angle (degrees) at ``point`` [..., 3] between the rays to camera centres ``c1`` and ``c2``."""
+    a = np.asarray(c1, dtype=np.float64) - point
+    b = np.asarray(c2, dtype=np.float64) - point
+    na = np.linalg.norm(a, axis=-1)
+    nb = np.linalg.norm(b, axis=-1)
+    cos = np.sum(a * b, axis=-1) / np.maximum(na * nb, 1e-300)
+    return np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
+
+
+def pair_scores_from_points(
+    centers: np.ndarray, points: np.ndarray, visibility: list[np.ndarray]
+) -> np.ndarray:
+    """Score matrix [N, N] (zero diagonal) from shared points.
+
+    ``centers`` [N, 3] camera centres; ``points`` [P, 3]; ``visibility[i]`` the indices of the points
+    view i sees. Score(i, j) = sum over points seen by both of G(angle at the point).
+    """
+    n = len(centers)
+    scores = np.zeros((n, n), dtype=np.float64)
+    sets = [np.unique(np.asarray(v, dtype=np.int64)) for v in visibility]
+    for i in range(n):
+        for j in range(i + 1, n):
+            shared = np.intersect1d(sets[i], sets[j], assume_unique=True)
+            if shared.size == 0:
+                continue
+            theta = ray_angle_deg(points[shared], centers[i], centers[j])
+            scores[i, j] = scores[j, i] = float(triangulation_angle_score(theta).sum())
+    return scores
+
+
+def top_neighbors(scores: np.ndarray, k: int = 10) -> list[list[tuple[int, float]]]:
+    """Per view, up to ``k`` (index, score) pairs with positive score, best first (ties: lower index)."""
+    out = []
+    for i, row in enumerate(np.asarray(scores, dtype=np.float64)):
+        order = sorted((j for j in range(len(row)) if j != i and row[j] > 0), key=lambda j: (-row[j], j))
+        out.append([(j, float(row[j])) for j in order[:k]])
+    return out
+
+
+def point_closest_to_axes(centers: np.ndarray, directions: np.ndarray) -> np.ndarray | None:
+    """Least-squares point nearest to all lines ``C_i + s d_i``; None when ill-posed.
+
+    Solves sum_i (I - d_i d_i^T) X = sum_i (I - d_i d_i^T) C_i. Returns None when the axes are
+    (nearly) parallel or the point lies behind most cameras (e.g. a forward-facing capture).
+    """
+    C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    D = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    D = D / np.linalg.norm(D, axis=1, keepdims=True)
+    if len(C) < 2:
+        return None
+    A = np.zeros((3, 3))
+    b = np.zeros(3)
+    for c, d in zip(C, D):
+        P = np.eye(3) - np.outer(d, d)
+        A += P
+        b += P @ c
+    w = np.linalg.eigvalsh(A)
+    if w[0] < 1e-6 * w[-1] * len(C) or w[0] <= 0:
+        return None
+    X = np.linalg.solve(A, b)
+    in_front = np.sum(np.einsum("ij,ij->i", X - C, D) > 0)
+    return X if in_front > len(C) / 2 else None
+
+
+def neighbors_from_cameras(
+    centers: np.ndarray, directions: np.ndarray, k: int = 10
+) -> list[list[tuple[int, float]]]:
+    """Neighbours when no 3-D points are known (Middlebury, MVSNet folders without pair.txt).
+
+    Heuristic: the scene centre is taken as the point closest to all optical axes
+    (:func:`point_closest_to_axes`) and the pair score is G(angle at that point), i.e. the MVSNet
+    score with one shared point. When that point is ill-posed (parallel axes), the angle between the
+    viewing directions stands in for the triangulation angle.
+    """
+    C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    D = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
+    D = D / np.linalg.norm(D, axis=1, keepdims=True)
+    n = len(C)
+    X = point_closest_to_axes(C, D)
+    scores = np.zeros((n, n))
+    for i in range(n):
+        for j in range(n):
+            if i == j:
+                continue
+            if X is not None:
+                theta = ray_angle_deg(X, C[i], C[j])
+            else:
+                theta = np.degrees(np.arccos(np.clip(D[i] @ D[j], -1.0, 1.0)))
+            # Floor at a tiny positive value so that every other view stays a (low-ranked) candidate.
+            scores[i, j] = max(float(triangulation_angle_score(theta)), 1e-12)
+    return top_neighbors(scores, k)
