@@ -221,7 +221,7 @@ def test_load_real_dtu_scene_resolves_integer_scale(tmp_path, caplog):
     root = make_dtu_mvsnet(tmp_path / "scene")
     with caplog.at_level(logging.WARNING):
         scene = load_mvsnet_scene(root)
-    assert "scaled K by 4" in caplog.text
+    assert "K scaled by 4" in caplog.text
     scene.validate()
     assert [v.name for v in scene.views] == ["00000000", "00000001"]
     v = scene.views[0]

@@ -308,13 +308,24 @@ def cam_files(cam_dir: str | Path) -> dict[int, Path]:
 
 
 def match_image_size(K: np.ndarray, width: int, height: int, where: Path) -> np.ndarray:
-    """Return ``K`` for an image of ``width x height``, resolving an exact integer scale factor.
+    """As :func:`image_scale_factor`, returning ``K`` for the photo (scaled where needed)."""
+    s = image_scale_factor(K, width, height, where)
+    if s == 1.0:
+        return K
+    Ks = np.array(K, dtype=np.float64)
+    Ks[:2] *= s
+    return Ks
+
+
+def image_scale_factor(K: np.ndarray, width: int, height: int, where: Path) -> float:
+    """The factor s (1, an integer 2..8, or 1/s) by which ``K`` must be scaled for a ``width x height`` photo.
 
     A cam file does not state its image size; its principal point does, roughly. ``K`` is accepted as
     is when (cx, cy) lies in the central 60% of the image. Otherwise, of the integer factors s = 2..8 and
     1/s, the one putting s * (cx, cy) nearest the image centre is taken if that is within 15% of the
     image size: ``K[:2] *= s`` (the MVSNet
-    convention for resized images; integer pixel coordinates) and a warning names the factor.
+    convention for resized images; integer pixel coordinates); the loaders log one warning per scene
+    naming the factor.
     Anything else raises :class:`InputError`.
     """
     cx, cy = K[0, 2], K[1, 2]
@@ -323,23 +334,81 @@ def match_image_size(K: np.ndarray, width: int, height: int, where: Path) -> np.
         return max(abs(s * cx / width - 0.5), abs(s * cy / height - 0.5))
 
     if off_centre(1.0) <= 0.3:
-        return K
+        return 1.0
     factors = [float(v) for v in range(2, 9)] + [1.0 / v for v in range(2, 9)]
     best = min(factors, key=off_centre)
     if off_centre(best) <= 0.15:
-        Ks = K.copy()
-        Ks[:2] *= best
-        log.warning(
-            "%s: camera intrinsics are for an image %s the size of the %dx%d photo; scaled K by %g",
-            where, f"1/{best:g}" if best > 1 else f"{1 / best:g}x", width, height, best,
-        )
-        return Ks
+        return best
     raise InputError(
         f"the camera's principal point ({cx:g}, {cy:g}) does not fit the {width}x{height} image, nor any "
         "integer rescaling of it: the photo and the camera file do not belong together (resize the "
         "photo to the resolution the camera was calibrated for)",
         where,
     )
+
+
+def view_from_cam(
+    name: str,
+    cam_path: Path,
+    image_path: Path,
+    depth_format: DepthFormat = "auto",
+    num_depth: int = DEFAULT_NUM_DEPTH,
+    interval_scale: float = 1.0,
+    scales: list[float] | None = None,
+) -> View:
+    """One View from a cam file and its photo (size from the header, K matched to it).
+
+    The K scale factor used (:func:`image_scale_factor`) is appended to ``scales`` when given.
+    """
+    cam = read_cam(cam_path, depth_format=depth_format, num_depth=num_depth)
+    w, h = image_size(image_path)
+    s = image_scale_factor(cam.K, w, h, image_path)
+    if scales is not None:
+        scales.append(s)
+    K = cam.K.copy()
+    K[:2] *= s
+    dmin, dmax = cam.depth_min, cam.depth_max
+    if dmin is not None and dmax is not None and interval_scale != 1.0:
+        dmax = dmin + (dmax - dmin) * interval_scale
+    return View(name=name, image_path=image_path, width=w, height=h, K=K, R=cam.R, t=cam.t,
+                depth_min=dmin, depth_max=dmax)
+
+
+def report_scaling(where: Path, scales: list[float]) -> None:
+    """One warning for the views whose K was rescaled to fit their photos."""
+    scaled = [s for s in scales if s != 1.0]
+    if scaled:
+        factors = ", ".join(f"{s:g}" for s in sorted(set(scaled)))
+        log.warning("%s: camera intrinsics of %d of %d views are for another image size; K scaled by %s to fit the "
+                    "photos", where, len(scaled), len(scales), factors)
+
+
+def set_neighbors(
+    views: list[View], ids: list[int], pair_path: Path | None, num_neighbors: int = 10, skipped: set[int] = frozenset()
+) -> None:
+    """Fill ``views[i].neighbors`` from pair.txt (``ids[i]`` is view i's id there) or, without one, geometry.
+
+    Ids in ``skipped`` (cameras the caller left out, e.g. without a photo) are dropped from the pairs;
+    any other id the scene does not have is an error.
+    """
+    index = {vid: i for i, vid in enumerate(ids)}
+    if pair_path is not None and pair_path.is_file():
+        pairs = read_pair(pair_path)
+        for ref, srcs in pairs.items():
+            missing = [v for v in [ref] + [s for s, _ in srcs] if v not in index and v not in skipped]
+            if missing:
+                raise InputError(
+                    f"pair file references view(s) {sorted(set(missing))} that have no camera in the scene",
+                    pair_path,
+                )
+            if ref in index:
+                views[index[ref]].neighbors = [index[s] for s, _ in srcs if s != ref and s in index][:num_neighbors]
+        return
+    log.info("no pair.txt; choosing neighbours from the camera geometry")
+    centers = np.stack([v.center for v in views])
+    dirs = np.stack([v.R[2] for v in views])
+    for v, nb in zip(views, neighbors_from_cameras(centers, dirs, num_neighbors)):
+        v.neighbors = [j for j, _ in nb]
 
 
 def load_mvsnet_scene(
@@ -375,36 +444,15 @@ def load_mvsnet_scene(
     if not image_dir.is_dir():
         raise InputError(f"no image folder {image_dir.name}/", root)
     views: list[View] = []
+    scales: list[float] = []
     for vid, cam_path in cams.items():
-        cam = read_cam(cam_path, depth_format=depth_format, num_depth=num_depth)
         stem = f"{vid:08d}"
         img = find_image(image_dir, stem) or find_image(image_dir, str(vid))
         if img is None:
             raise InputError(f"no image for camera {cam_path.name} (looked for {stem}.jpg/.png/...)", image_dir)
-        w, h = image_size(img)
-        K = match_image_size(cam.K, w, h, img)
-        dmin, dmax = cam.depth_min, cam.depth_max
-        if dmin is not None and dmax is not None and interval_scale != 1.0:
-            dmax = dmin + (dmax - dmin) * interval_scale
-        views.append(View(name=stem, image_path=img, width=w, height=h, K=K, R=cam.R, t=cam.t,
-                          depth_min=dmin, depth_max=dmax))
-    index = {vid: i for i, vid in enumerate(cams)}
-    if pair_path.is_file():
-        pairs = read_pair(pair_path)
-        for ref, srcs in pairs.items():
-            missing = [v for v in [ref] + [s for s, _ in srcs] if v not in index]
-            if missing:
-                raise InputError(
-                    f"pair file references view(s) {sorted(set(missing))} that have no camera in {cam_dir.name}/",
-                    pair_path,
-                )
-            views[index[ref]].neighbors = [index[s] for s, _ in srcs if s != ref]
-    else:
-        log.info("%s: no pair.txt; choosing neighbours from the camera geometry", root)
-        centers = np.stack([v.center for v in views])
-        dirs = np.stack([v.R[2] for v in views])
-        for v, nb in zip(views, neighbors_from_cameras(centers, dirs, num_neighbors)):
-            v.neighbors = [j for j, _ in nb]
+        views.append(view_from_cam(stem, cam_path, img, depth_format, num_depth, interval_scale, scales))
+    report_scaling(root, scales)
+    set_neighbors(views, list(cams), pair_path, num_neighbors)
     return Scene(views=views, root=root, source_format="mvsnet")
 
 
