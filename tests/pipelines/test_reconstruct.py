@@ -9,9 +9,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from PIL import Image
 
 from mvsformerpp.errors import InputError, MVSFormerError
-from mvsformerpp.io.mvsnet import read_cam, read_pair
+from mvsformerpp.io.mvsnet import read_cam, read_pair, write_mvsnet_scene
 from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
 from mvsformerpp.pipelines.demo import temple_dir
@@ -202,10 +203,7 @@ def test_bad_input_gets_a_clear_error(scene4, tmp_path, case, match):
 
 
 def test_views_without_neighbours_and_size_mismatch(tmp_path, scene4):
-    from PIL import Image
-
     from mvsformerpp.io.detect import load_scene
-    from mvsformerpp.io.mvsnet import write_mvsnet_scene
 
     mvs = tmp_path / "mvs"
     write_mvsnet_scene(load_scene(scene4), mvs)
