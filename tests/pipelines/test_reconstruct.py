@@ -36,7 +36,7 @@ def temple_subset(dst: Path, names: list[int]) -> Path:
     """A Middlebury set with only the given temple views (1-based numbers), README included."""
     dst.mkdir(parents=True)
     lines = (TEMPLE / "templeSR_par.txt").read_text().splitlines()[1:]
-    keep = [ln for ln in lines if ln.split() and int(ln.split()[0][7:11]) in names]
+    keep = [ln for ln in lines if ln.split() and int(ln.split()[0][8:12]) in names]
     (dst / "templeSR_par.txt").write_text(f"{len(keep)}\n" + "\n".join(keep) + "\n")
     for ln in keep:
         shutil.copy(TEMPLE / ln.split()[0], dst / ln.split()[0])

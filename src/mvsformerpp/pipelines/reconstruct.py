@@ -57,7 +57,7 @@ class ReconstructConfig:
     depth_range: tuple[float, float] | None = None
     """Override of every view's depth range (scene units); None = from the input."""
     max_images: int | None = None
-    """Use only the first N views of the scene (quick looks, tests); None = all."""
+    """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
     fusion: Literal["normal", "dynamic", "gipuma"] = "normal"
     """Fusion filter (``mvsformerpp.fusion``)."""
     cache_mb: int = 2048
@@ -116,9 +116,10 @@ def prepare_scene(scene: Scene, config: ReconstructConfig) -> Scene:
     if config.max_images is not None:
         if config.max_images < 2:
             raise InputError(f"--max-images must be at least 2, got {config.max_images}")
-        views = views[: config.max_images]
-        keep = len(views)
-        views = [dataclasses.replace(v, neighbors=[j for j in v.neighbors if j < keep]) for v in views]
+        keep = connected_subset(scene, config.max_images)
+        new_index = {old: new for new, old in enumerate(keep)}
+        views = [dataclasses.replace(views[i], neighbors=[new_index[j] for j in views[i].neighbors if j in new_index])
+                 for i in keep]
     if len(views) < 2:
         raise InputError(f"the scene has {len(views)} view(s); multi-view stereo needs at least 2", where)
     if config.depth_range is not None:
@@ -135,6 +136,24 @@ def prepare_scene(scene: Scene, config: ReconstructConfig) -> Scene:
     out.validate(require_depth_range=True)
     _check_images(out)
     return out
+
+
+def connected_subset(scene: Scene, n: int) -> list[int]:
+    """Up to ``n`` view indices that overlap: view 0, then breadth-first over best neighbours; sorted."""
+    chosen: list[int] = []
+    queue = [0]
+    while queue and len(chosen) < n:
+        i = queue.pop(0)
+        if i in chosen:
+            continue
+        chosen.append(i)
+        queue.extend(j for j in scene.views[i].neighbors if j not in chosen)
+    for i in range(len(scene)):  # disconnected scenes: fill up in order
+        if len(chosen) >= n:
+            break
+        if i not in chosen:
+            chosen.append(i)
+    return sorted(chosen)
 
 
 def _check_images(scene: Scene) -> None:
