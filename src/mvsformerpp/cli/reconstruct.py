@@ -31,7 +31,8 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help=f"views per depth map: the reference plus N-1 neighbours (default: {_DEFAULT.num_views})")
     g.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="override every view's depth range (scene units)")
-    g.add_argument("--max-images", type=int, metavar="N", help="use only N overlapping views: the first view and its best neighbours")
+    g.add_argument("--max-images", type=int, metavar="N",
+                   help="use only N overlapping views: the first view and its best neighbours")
     g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma"), default=_DEFAULT.fusion,
                    help=f"fusion filter (default: {_DEFAULT.fusion})")
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
