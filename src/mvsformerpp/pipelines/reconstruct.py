@@ -84,7 +84,7 @@ def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool
     if not path.exists():
         raise InputError("no such file or folder", path)
     layout = detect.detect_layout(path)
-    if layout == "photos":
+    if layout == "images":
         from mvsformerpp.pipelines.sfm import run_sfm
 
         dense = run_sfm(path, out / "sfm", quiet=quiet)

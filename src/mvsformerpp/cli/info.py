@@ -1,0 +1,43 @@
+"""``mvsformerpp info SCENE``: detect a scene's layout and print its views, sizes, depth ranges, neighbours."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+
+def register(subparsers: argparse._SubParsersAction) -> None:
+    p = subparsers.add_parser(
+        "info",
+        help="show a scene: layout, views, resolutions, depth ranges, neighbours",
+        description="Detect the layout of SCENE (MVSNet, COLMAP, Middlebury, DTU, BlendedMVS, Tanks and Temples) "
+        "and summarise it.",
+    )
+    p.add_argument("scene", metavar="SCENE", help="scene folder or camera file")
+    p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--depth-range", nargs=2, type=float, metavar=("MIN", "MAX"), help="override every depth range")
+    p.add_argument("--num-neighbors", type=int, help="cap the neighbour lists (default 10)")
+    p.add_argument("--depth-format", choices=["auto", "interval", "max"], default="auto",
+                   help="how to read a two-number cam depth line: min+interval, min+max, or guess (default)")
+    p.add_argument("--scan", help="DTU scan to show (e.g. scan1) when the layout holds several")
+    p.add_argument("--short-range", action="store_true", help="Tanks and Temples: use short_range_cameras")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mvsformerpp.io.detect import detect_layout, load_scene
+    from mvsformerpp.io.summary import format_summary, summarize_scene
+
+    layout = detect_layout(args.scene)
+    scene = load_scene(
+        args.scene,
+        layout=layout,
+        depth_range=tuple(args.depth_range) if args.depth_range else None,
+        num_neighbors=args.num_neighbors,
+        depth_format=args.depth_format,
+        scan=args.scan,
+        short_range=args.short_range,
+    )
+    summary = summarize_scene(scene, layout)
+    print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
+    return 0

@@ -1,0 +1,64 @@
+"""A scene at a glance: what ``mvsformerpp info`` prints, as plain data."""
+
+from __future__ import annotations
+
+from collections import Counter
+from typing import Any
+
+import numpy as np
+
+from mvsformerpp.io.scene import Scene
+
+
+def _stats(values: list[float]) -> dict[str, float] | None:
+    if not values:
+        return None
+    arr = np.asarray(values, dtype=np.float64)
+    return {"min": float(arr.min()), "median": float(np.median(arr)), "max": float(arr.max())}
+
+
+def summarize_scene(scene: Scene, layout: str | None = None) -> dict[str, Any]:
+    """JSON-ready summary: layout, view count, resolutions, depth ranges, neighbour counts, GT depth count.
+
+    ``resolutions`` maps ``"WxH"`` to the number of views of that size (most common first);
+    ``depth_min``/``depth_max`` give min/median/max over the views that have a range.
+    """
+    views = scene.views
+    res = Counter(f"{v.width}x{v.height}" for v in views)
+    with_range = [v for v in views if v.depth_min is not None and v.depth_max is not None]
+    nbrs = [len(v.neighbors) for v in views]
+    return {
+        "path": str(scene.root) if scene.root is not None else None,
+        "layout": layout or scene.source_format,
+        "num_views": len(views),
+        "resolutions": dict(res.most_common()),
+        "views_with_depth_range": len(with_range),
+        "depth_min": _stats([v.depth_min for v in with_range]),
+        "depth_max": _stats([v.depth_max for v in with_range]),
+        "neighbors": _stats([float(n) for n in nbrs]),
+        "views_without_neighbors": sum(n == 0 for n in nbrs),
+        "views_with_gt_depth": sum(v.depth_gt_path is not None for v in views),
+        "views_with_mask": sum(v.mask_path is not None for v in views),
+    }
+
+
+def format_summary(s: dict[str, Any]) -> str:
+    """Human-readable text of :func:`summarize_scene`'s dict."""
+
+    def trio(st: dict[str, float] | None) -> str:
+        return "-" if st is None else f"{st['min']:.6g} / {st['median']:.6g} / {st['max']:.6g}"
+
+    lines = [
+        f"scene:        {s['path']}",
+        f"layout:       {s['layout']}",
+        f"views:        {s['num_views']}",
+        "resolutions:  " + ", ".join(f"{k} ({n} view{'s' if n != 1 else ''})" for k, n in s["resolutions"].items()),
+        f"depth range:  {s['views_with_depth_range']} of {s['num_views']} views have one "
+        "(min / median / max over views)",
+        f"  near:       {trio(s['depth_min'])}",
+        f"  far:        {trio(s['depth_max'])}",
+        f"neighbours:   {trio(s['neighbors'])} per view (min / median / max)"
+        + (f"; {s['views_without_neighbors']} view(s) without any" if s["views_without_neighbors"] else ""),
+        f"ground truth: {s['views_with_gt_depth']} depth map(s), {s['views_with_mask']} mask(s)",
+    ]
+    return "\n".join(lines)
