@@ -70,7 +70,7 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False, max
     from tqdm import tqdm
 
     # COLMAP logs every step at INFO level; keep warnings and errors only (all of it when verbose).
-    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else 1
+    pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else (2 if quiet else 1)
 
     with tqdm(total=4, desc="SfM", unit="stage", disable=quiet) as progress:
         database = sfm_dir / "database.db"
