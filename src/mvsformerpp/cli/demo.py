@@ -1,0 +1,47 @@
+"""``mvsformerpp demo``: the bundled temple, end to end, with the lite network."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+
+from mvsformerpp.cli.reconstruct import add_model_args, print_summary
+
+NO_WEIGHTS_NOTE = (
+    "note: no trained weights are bundled with mvsformerpp, so without --checkpoint the network is randomly "
+    "initialised and the depth maps and point cloud are NOT meaningful geometry; this demo shows the pipeline "
+    "end to end. Pass --checkpoint with weights trained for the preset to get a real reconstruction."
+)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
+
+    config = dataclasses.replace(DEMO_CONFIG, preset=args.preset, checkpoint=args.checkpoint, device=args.device,
+                                 precision=args.precision, max_size=args.max_size, max_images=args.max_images)
+    if not args.quiet:
+        print(f"Reconstructing the Middlebury temple ({temple_dir()}; see README.txt there for its credits)")
+        if args.checkpoint is None:
+            print(NO_WEIGHTS_NOTE)
+    summary = run_demo(args.output, config, quiet=args.quiet)
+    if not args.quiet:
+        print_summary(summary, args.output)
+    elif args.checkpoint is None:
+        print(NO_WEIGHTS_NOTE)
+    return 0
+
+
+def register(subparsers) -> None:
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG
+
+    p = subparsers.add_parser("demo", help="reconstruct the bundled Middlebury temple end to end",
+                              description="Reconstruct the bundled 16-view Middlebury temple with the lite network "
+                                          "and print where the point cloud and depth images are.")
+    p.add_argument("-o", "--output", default="mvsformerpp-demo", metavar="OUT",
+                   help="output folder (default: ./mvsformerpp-demo)")
+    add_model_args(p, default_preset="lite")
+    p.add_argument("--max-size", type=int, default=DEMO_CONFIG.max_size, metavar="PX",
+                   help=f"longer side of the working resolution (default: {DEMO_CONFIG.max_size})")
+    p.add_argument("--max-images", type=int, metavar="N", help="use only the first N of the 16 views")
+    p.add_argument("--quiet", action="store_true", help="no progress bars")
+    p.set_defaults(func=run)

@@ -1,0 +1,83 @@
+"""``mvsformerpp reconstruct INPUT -o OUT``: depth maps and a fused point cloud from one command."""
+
+from __future__ import annotations
+
+import argparse
+import logging
+
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig
+
+_DEFAULT = ReconstructConfig()
+
+
+def add_model_args(p: argparse.ArgumentParser, default_preset: str) -> None:
+    g = p.add_argument_group("network")
+    g.add_argument("--preset", choices=("lite", "paper"), default=default_preset,
+                   help=f"network preset (default: {default_preset}); 'lite' is a small network for CPU")
+    g.add_argument("--checkpoint", metavar="PATH", help="weights matching the preset (default: random init)")
+    g.add_argument("--device", default=_DEFAULT.device, help="torch device: cpu, cuda, cuda:1, ... (default: cpu)")
+    g.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default=_DEFAULT.precision,
+                   help="autocast precision (default: fp32; bf16 is the reference's GPU setting)")
+
+
+def add_run_args(p: argparse.ArgumentParser) -> None:
+    g = p.add_argument_group("reconstruction")
+    g.add_argument("--max-size", type=int, default=_DEFAULT.max_size, metavar="PX",
+                   help=f"cap on the longer side of the working resolution (default: {_DEFAULT.max_size}; "
+                        "images are never upscaled and the aspect ratio is kept)")
+    g.add_argument("--memory-gb", type=float, metavar="GB",
+                   help="memory budget of one forward pass (default: half of the free memory)")
+    g.add_argument("--views", type=int, default=_DEFAULT.num_views, metavar="N",
+                   help=f"views per depth map: the reference plus N-1 neighbours (default: {_DEFAULT.num_views})")
+    g.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),
+                   help="override every view's depth range (scene units)")
+    g.add_argument("--max-images", type=int, metavar="N",
+                   help="use only N overlapping views: the first view and its best neighbours")
+    g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma"), default=_DEFAULT.fusion,
+                   help=f"fusion filter (default: {_DEFAULT.fusion})")
+    g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
+                   help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
+    g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
+
+
+def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
+    return ReconstructConfig(
+        preset=args.preset, checkpoint=args.checkpoint, device=args.device, precision=args.precision,
+        max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
+        depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
+        fusion=args.fusion, cache_mb=args.cache_mb,
+    )
+
+
+def print_summary(summary: dict, out) -> None:
+    print(f"{summary['views']} depth maps and a fused cloud of {summary['points']} points in {out}")
+    print(f"  point cloud : {summary['outputs']['ply']}")
+    print(f"  depth images: {summary['outputs']['depth_vis']}")
+    print(f"  time        : {summary['timings']['total_s']:.1f} s")
+
+
+def run(args: argparse.Namespace) -> int:
+    from mvsformerpp.pipelines.reconstruct import reconstruct
+
+    if args.quiet:
+        logging.getLogger("mvsformerpp").setLevel(logging.WARNING)
+    summary = reconstruct(args.input, args.output, config_from_args(args), quiet=args.quiet)
+    if not args.quiet:
+        print_summary(summary, args.output)
+    return 0
+
+
+def register(subparsers) -> None:
+    p = subparsers.add_parser(
+        "reconstruct",
+        help="depth maps and a fused point cloud from photos, a COLMAP project or an MVSNet folder",
+        description="Reconstruct INPUT: an MVSNet scene folder (images/, cams/, pair.txt), a COLMAP project "
+                    "(distorted cameras are undistorted first), a Middlebury *_par.txt set, or a plain folder of "
+                    "photos (structure-from-motion with pycolmap runs first). Writes per-view depth and "
+                    "confidence maps, previews and OUT/fused.ply. Run the same command again to resume.",
+    )
+    p.add_argument("input", metavar="INPUT", help="scene folder or photo folder")
+    p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
+    add_model_args(p, default_preset=_DEFAULT.preset)
+    add_run_args(p)
+    p.set_defaults(func=run)

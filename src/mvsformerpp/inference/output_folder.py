@@ -1,0 +1,157 @@
+"""The reconstruction output folder: per-view outputs, resumable progress, scene identity.
+
+Layout (binding for fusion, which reads it with the MVSNet reader):
+``images/NNNNNNNN.<ext>``, ``cams/NNNNNNNN_cam.txt``, ``pair.txt``, ``depth_est/NNNNNNNN.pfm``,
+``confidence/NNNNNNNN.pfm``, ``depth_vis/NNNNNNNN.png``, ``confidence_vis/NNNNNNNN.png``, ``fused.ply``,
+``config.json``, ``summary.json``, ``views.json``; plus ``progress.json`` (which views are done and with
+which settings) and ``sfm/`` when structure-from-motion ran.
+
+Every file is written to a temporary name and renamed (:mod:`mvsformerpp.utils.atomic`); a view counts
+as done only once all four of its files exist and ``progress.json`` records it with the current
+settings hash, so an interrupted run never leaves a view that looks done but is not.
+"""
+
+from __future__ import annotations
+
+import errno
+import hashlib
+import json
+import os
+import shutil
+from contextlib import contextmanager
+from pathlib import Path
+
+import numpy as np
+
+from mvsformerpp.errors import InputError, MVSFormerError
+from mvsformerpp.io.pfm import write_pfm
+from mvsformerpp.io.scene import Scene
+from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
+from mvsformerpp.utils.colormap import confidence_to_png, depth_to_png
+
+
+class DiskFullError(MVSFormerError):
+    """The disk filled up while writing an output."""
+
+
+@contextmanager
+def disk_full_guard(what: Path):
+    """Turn ENOSPC/EDQUOT while writing ``what`` into a clear :class:`DiskFullError`."""
+    try:
+        yield
+    except OSError as e:
+        if e.errno in (errno.ENOSPC, errno.EDQUOT):
+            raise DiskFullError(
+                f"{what}: the disk is full (no space left while writing). Free some space and run the same "
+                "command again: finished views are kept and the run continues where it stopped"
+            ) from e
+        raise
+
+
+def view_stem(i: int) -> str:
+    return f"{i:08d}"
+
+
+def scene_fingerprint(scene: Scene) -> str:
+    """A hash of what identifies a scene: view names, image sizes and camera poses/intrinsics."""
+    h = hashlib.sha256()
+    for v in scene.views:
+        h.update(v.name.encode())
+        h.update(f"{v.width}x{v.height}".encode())
+        for a in (v.K, v.R, v.t):
+            h.update(np.round(np.asarray(a, dtype=np.float64), 6).tobytes())
+    return h.hexdigest()[:16]
+
+
+def settings_hash(settings: dict) -> str:
+    return hashlib.sha256(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
+
+
+class OutputFolder:
+    """Reads and writes one reconstruction output folder."""
+
+    def __init__(self, root: str | Path):
+        self.root = Path(root)
+        if self.root.exists() and not self.root.is_dir():
+            raise InputError("the output path exists and is not a folder; choose another -o", self.root)
+        self.root.mkdir(parents=True, exist_ok=True)
+        self.progress_path = self.root / "progress.json"
+        self.progress = self._read_json(self.progress_path) or {"views": {}, "fusion": None}
+
+    def _read_json(self, path: Path) -> dict | None:
+        if not path.is_file():
+            return None
+        try:
+            return json.loads(path.read_text())
+        except (OSError, ValueError) as e:
+            raise InputError(f"cannot read {path.name} ({e}); delete it or choose another -o", path) from e
+
+    def paths(self, i: int) -> dict[str, Path]:
+        s = view_stem(i)
+        return {
+            "depth": self.root / "depth_est" / f"{s}.pfm",
+            "confidence": self.root / "confidence" / f"{s}.pfm",
+            "depth_vis": self.root / "depth_vis" / f"{s}.png",
+            "confidence_vis": self.root / "confidence_vis" / f"{s}.png",
+        }
+
+    def check_scene(self, fingerprint: str) -> None:
+        """Refuse a folder that holds the outputs of a different scene."""
+        stored = self._read_json(self.root / "config.json")
+        if stored is not None and stored.get("scene_fingerprint") not in (None, fingerprint):
+            raise InputError(
+                "this output folder holds the reconstruction of a different scene (its config.json has another "
+                "scene fingerprint). Choose a new -o folder, or delete this one to start over",
+                self.root,
+            )
+
+    def view_done(self, i: int, state: str) -> bool:
+        return self.progress["views"].get(str(i)) == state and all(p.is_file() for p in self.paths(i).values())
+
+    def write_view(self, i: int, depth: np.ndarray, confidence: np.ndarray, state: str) -> None:
+        """Write the four files of view ``i``, then record it as done."""
+        p = self.paths(i)
+        with disk_full_guard(p["depth"]):
+            write_pfm(p["depth"], depth)
+            write_pfm(p["confidence"], confidence)
+            depth_to_png(p["depth_vis"], depth)
+            confidence_to_png(p["confidence_vis"], confidence)
+            self.progress["views"][str(i)] = state
+            self.save_progress()
+
+    def fusion_done(self, state: str) -> bool:
+        return self.progress.get("fusion") == state and (self.root / "fused.ply").is_file()
+
+    def mark_fusion(self, state: str) -> None:
+        self.progress["fusion"] = state
+        self.save_progress()
+
+    def save_progress(self) -> None:
+        with disk_full_guard(self.progress_path):
+            atomic_write_text(self.progress_path, json.dumps(self.progress, indent=1, sort_keys=True))
+
+    def write_json(self, name: str, data: dict) -> Path:
+        path = self.root / name
+        with disk_full_guard(path):
+            atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
+        return path
+
+    def link_image(self, i: int, src: Path) -> Path:
+        """``images/NNNNNNNN<ext>``: a hard link to the input photo, or a copy across file systems."""
+        dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"
+        if dst.is_file() and dst.stat().st_size == src.stat().st_size:
+            return dst
+        dst.parent.mkdir(parents=True, exist_ok=True)
+        with disk_full_guard(dst):
+            tmp = dst.with_name(f".{dst.name}.link")
+            try:
+                if tmp.exists():
+                    tmp.unlink()
+                os.link(src, tmp)
+                os.replace(tmp, dst)
+            except OSError as e:
+                if e.errno in (errno.ENOSPC, errno.EDQUOT):
+                    raise
+                with atomic_open(dst, "wb") as f, open(src, "rb") as fin:
+                    shutil.copyfileobj(fin, f)
+        return dst

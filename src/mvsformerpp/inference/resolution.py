@@ -1,0 +1,131 @@
+"""Working resolution: resize each view without distorting its aspect ratio, pad to a multiple of 64.
+
+Pixel convention (the one fusion uses, see :mod:`mvsformerpp.geometry`): pixel ``(u, v)`` covers the
+square ``[u, u+1) x [v, v+1)`` and K maps to these continuous coordinates, so a resize by ``s``
+(area/bilinear resampling with half-pixel centres, as PIL and ``align_corners=False`` do) maps
+``u -> s * u`` exactly and the new intrinsics are ``diag(sx, sy, 1) @ K``. Padding is added only on
+the right and bottom, which leaves K unchanged; outputs are cropped back to ``[:h, :w]`` and resized to
+the original size.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+# The network downsamples by 8 and its DINOv2 branch works on 14-px patches of a resized copy; the
+# reference asks for a multiple of 64 (spec section 0 / README).
+MULTIPLE = 64
+# Peak working memory of one forward per pixel per view, measured on the reference at 512x640 and
+# 1152x1536 (spec section 15: 730 and 430 bytes); rounded up for safety.
+BYTES_PER_PIXEL_PER_VIEW = 900.0
+
+
+@dataclass(frozen=True)
+class ViewResize:
+    """How one view goes from its original size to the padded network canvas."""
+
+    width: int  # original
+    height: int
+    resized_width: int  # after resizing, before padding
+    resized_height: int
+    canvas_width: int  # after padding (a multiple of 64; the same for every view of a scene)
+    canvas_height: int
+
+    @property
+    def scale_x(self) -> float:
+        return self.resized_width / self.width
+
+    @property
+    def scale_y(self) -> float:
+        return self.resized_height / self.height
+
+    def scale_intrinsics(self, K: np.ndarray) -> np.ndarray:
+        """K at the original resolution -> K on the canvas (padding is right/bottom, so no shift)."""
+        K2 = np.array(K, dtype=np.float64, copy=True)
+        K2[0, :] *= self.scale_x
+        K2[1, :] *= self.scale_y
+        return K2
+
+    def image_to_canvas(self, image: np.ndarray) -> torch.Tensor:
+        """uint8 ``[H, W, 3]`` at the original size -> float ``[3, Hc, Wc]`` in [0, 1], edge-padded."""
+        if image.shape[:2] != (self.height, self.width):
+            raise ValueError(f"image is {image.shape[1]}x{image.shape[0]}, expected {self.width}x{self.height}")
+        x = torch.from_numpy(np.ascontiguousarray(image)).permute(2, 0, 1).float().div_(255.0)
+        if (self.resized_width, self.resized_height) != (self.width, self.height):
+            x = F.interpolate(x[None], size=(self.resized_height, self.resized_width), mode="bilinear",
+                              align_corners=False, antialias=self.scale_x < 1.0)[0].clamp_(0.0, 1.0)
+        pad_r = self.canvas_width - self.resized_width
+        pad_b = self.canvas_height - self.resized_height
+        # Edge padding (as the reference does for Tanks and Temples) keeps the border statistics natural.
+        if pad_r or pad_b:
+            x = F.pad(x[None], (0, pad_r, 0, pad_b), mode="replicate")[0]
+        return x
+
+    def canvas_to_original(self, x: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
+        """``[Hc, Wc]`` map on the canvas -> ``[H, W]`` at the original size (padding cropped out)."""
+        x = x[: self.resized_height, : self.resized_width]
+        if (self.resized_width, self.resized_height) == (self.width, self.height):
+            return x
+        kw = {"align_corners": False} if mode == "bilinear" else {}
+        return F.interpolate(x[None, None].float(), size=(self.height, self.width), mode=mode, **kw)[0, 0]
+
+
+def round_up(x: int, multiple: int = MULTIPLE) -> int:
+    return int(math.ceil(x / multiple) * multiple)
+
+
+def plan_views(sizes: list[tuple[int, int]], long_side: int) -> list[ViewResize]:
+    """Resize every ``(width, height)`` so its longer side is at most ``long_side`` (never upscaled).
+
+    All views share one canvas: the largest padded size among them.
+    """
+    if not sizes:
+        raise ValueError("no views")
+    resized = []
+    for w, h in sizes:
+        s = min(1.0, long_side / max(w, h))
+        resized.append((max(1, round(w * s)), max(1, round(h * s))))
+    cw = round_up(max(w for w, _ in resized))
+    ch = round_up(max(h for _, h in resized))
+    return [ViewResize(w, h, rw, rh, cw, ch) for (w, h), (rw, rh) in zip(sizes, resized)]
+
+
+def choose_long_side(sizes: list[tuple[int, int]], num_views: int, max_size: int | None,
+                     memory_bytes: float | None) -> int:
+    """The largest longer side (a multiple of 64 at most the original) that fits ``max_size`` and memory.
+
+    ``memory_bytes`` bounds the estimated peak of one forward over ``num_views`` views
+    (:data:`BYTES_PER_PIXEL_PER_VIEW` per canvas pixel per view).
+    """
+    longest = max(max(w, h) for w, h in sizes)
+    side = longest if max_size is None else min(longest, int(max_size))
+    side = max(side, MULTIPLE)
+    if memory_bytes is None:
+        return side
+    while side > MULTIPLE:
+        plan = plan_views(sizes, side)
+        pixels = plan[0].canvas_width * plan[0].canvas_height
+        if pixels * num_views * BYTES_PER_PIXEL_PER_VIEW <= memory_bytes:
+            break
+        side = (side - 1) // MULTIPLE * MULTIPLE if side % MULTIPLE else side - MULTIPLE
+    return side
+
+
+def available_memory_bytes(device: torch.device) -> float:
+    """Free memory on ``device`` (CUDA: the allocator's view; CPU: MemAvailable from /proc/meminfo)."""
+    if device.type == "cuda":
+        free, _total = torch.cuda.mem_get_info(device)
+        return float(free)
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return float(line.split()[1]) * 1024.0
+    except OSError:
+        pass
+    return 8e9  # unknown platform: assume a modest machine

@@ -1,0 +1,145 @@
+"""Adapt a :class:`~mvsformerpp.io.scene.Scene` to the network's tensors and back, view by view.
+
+For each reference view: pick ``num_views - 1`` source views from its neighbours (padded by
+repeating the first source when there are too few, as the reference test loader does, spec section
+10), resize and pad every image to the shared canvas (:mod:`.resolution`), build the per-stage
+projection matrices (slot 0: world-to-camera 4x4; slot 1: K at 1/8, 1/4, 1/2, 1 of the canvas
+resolution; spec section 0), run the model, and crop/resize the depth and the 4-stage mean
+photometric confidence back to the original image size.
+
+The per-image encoder features come from a :class:`.feature_cache.FeatureCache`, so each image is
+encoded once per scene (while it stays in the cache) instead of once per reference view.
+"""
+
+from __future__ import annotations
+
+import contextlib
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import torch
+
+from mvsformerpp.inference.feature_cache import FeatureCache
+from mvsformerpp.inference.resolution import ViewResize
+from mvsformerpp.io.scene import Scene
+
+# ImageNet statistics: every official loader normalises RGB in [0, 1] with these (spec section 0).
+IMAGENET_MEAN = (0.485, 0.456, 0.406)
+IMAGENET_STD = (0.229, 0.224, 0.225)
+# Stage resolutions relative to the input: 1/8, 1/4, 1/2, 1 (spec sections 0 and 4).
+STAGE_SCALES = {"stage1": 0.125, "stage2": 0.25, "stage3": 0.5, "stage4": 1.0}
+PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+
+
+@dataclass
+class ViewResult:
+    """Outputs of one reference view at its original resolution."""
+
+    depth: np.ndarray  # [H, W] float32, scene units
+    confidence: np.ndarray  # [H, W] float32 in [0, 1]
+    source_views: list[int]
+    seconds: float
+
+
+def select_sources(scene: Scene, ref: int, num_views: int) -> list[int]:
+    """``num_views - 1`` source view indices for ``ref`` (best neighbours first, padded by repetition)."""
+    nbrs = [j for j in scene.views[ref].neighbors if j != ref]
+    if not nbrs:
+        raise ValueError(f"view {ref} has no neighbours")
+    need = num_views - 1
+    srcs = nbrs[:need]
+    return srcs + [srcs[0]] * (need - len(srcs))
+
+
+def normalize(img: torch.Tensor) -> torch.Tensor:
+    """RGB in [0, 1], ``[..., 3, H, W]`` -> ImageNet-normalised."""
+    mean = img.new_tensor(IMAGENET_MEAN).view(3, 1, 1)
+    std = img.new_tensor(IMAGENET_STD).view(3, 1, 1)
+    return (img - mean) / std
+
+
+def stage_projections(extrinsics: np.ndarray, intrinsics: np.ndarray) -> dict[str, torch.Tensor]:
+    """``[V,4,4]`` world-to-camera and ``[V,3,3]`` canvas K -> ``{stageN: [1,V,2,4,4]}`` float32."""
+    V = len(extrinsics)
+    out = {}
+    for name, s in STAGE_SCALES.items():
+        P = np.zeros((V, 2, 4, 4), dtype=np.float64)
+        P[:, 0] = extrinsics
+        K = intrinsics.copy()
+        K[:, :2, :] *= s
+        P[:, 1, :3, :3] = K
+        P[:, 1, 3, 3] = 1.0
+        out[name] = torch.from_numpy(P).float()[None]
+    return out
+
+
+class SceneInference:
+    """Run a depth network over the views of a scene with a per-image feature cache.
+
+    ``model`` follows the MVSFormer++ interface: ``encode_images(imgs [N,3,H,W])`` returns per-image
+    features and ``forward(imgs [1,V,3,H,W], proj_matrices, depth_values [1,D], temperatures,
+    image_features=...)`` returns ``depth`` and ``photometric_confidence`` ``[1,H,W]``.
+    ``load_image(i)`` returns view ``i``'s uint8 ``[H,W,3]`` photo at its original size.
+    ``cache_bytes=0`` disables the cache: ``forward`` then encodes every image of every view set.
+    """
+
+    def __init__(self, model: torch.nn.Module, scene: Scene, plans: list[ViewResize], load_image,
+                 num_views: int, num_depth: int = 192, temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0),
+                 device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30):
+        if precision not in PRECISIONS:
+            raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        self.model = model.eval()
+        self.scene = scene
+        self.plans = plans
+        self.load_image = load_image
+        self.num_views = int(num_views)
+        self.num_depth = int(num_depth)
+        self.temperatures = list(temperatures)
+        self.device = torch.device(device)
+        self.precision = precision
+        self.use_cache = cache_bytes > 0
+        self.cache = FeatureCache(self._encode, cache_bytes)
+
+    def _autocast(self):
+        dtype = PRECISIONS[self.precision]
+        if dtype is None:
+            return contextlib.nullcontext()
+        return torch.autocast(device_type=self.device.type, dtype=dtype)
+
+    def canvas_image(self, i: int) -> torch.Tensor:
+        """View ``i`` resized, padded and normalised: ``[3, Hc, Wc]`` on the device."""
+        return normalize(self.plans[i].image_to_canvas(self.load_image(i))).to(self.device)
+
+    @torch.no_grad()
+    def _encode(self, i: int) -> Any:
+        with self._autocast():
+            return self.model.encode_images(self.canvas_image(i)[None])
+
+    @torch.no_grad()
+    def infer(self, ref: int) -> ViewResult:
+        """Depth and confidence of reference view ``ref`` at its original resolution."""
+        import time
+
+        t0 = time.perf_counter()
+        srcs = select_sources(self.scene, ref, self.num_views)
+        ids = [ref] + srcs
+        views = [self.scene.views[i] for i in ids]
+        imgs = torch.stack([self.canvas_image(i) for i in ids])[None]  # [1,V,3,Hc,Wc]
+        extr = np.stack([v.extrinsic for v in views])
+        intr = np.stack([self.plans[i].scale_intrinsics(v.K) for i, v in zip(ids, views)])
+        projs = {k: v.to(self.device) for k, v in stage_projections(extr, intr).items()}
+        ref_view = self.scene.views[ref]
+        depth_values = torch.linspace(ref_view.depth_min, ref_view.depth_max, self.num_depth,
+                                      dtype=torch.float32, device=self.device)[None]
+        feats = self.cache.get_many(ids) if self.use_cache else None
+        with self._autocast():
+            out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats)
+        plan = self.plans[ref]
+        depth = plan.canvas_to_original(out["depth"][0].float(), mode="bilinear")
+        conf = plan.canvas_to_original(out["photometric_confidence"][0].float(), mode="bilinear")
+        depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).clamp_(min=0.0)
+        conf = torch.nan_to_num(conf, nan=0.0).clamp_(0.0, 1.0)
+        return ViewResult(depth=depth.cpu().numpy().astype(np.float32),
+                          confidence=conf.cpu().numpy().astype(np.float32),
+                          source_views=srcs, seconds=time.perf_counter() - t0)

@@ -1,0 +1,25 @@
+"""``demo``: reconstruct the bundled Middlebury temple (16 views, 640x480) end to end.
+
+The data (``mvsformerpp/data/templeSparseRing``; README.txt there holds the attribution: Seitz,
+Diebel, Scharstein, Curless, Szeliski, the Middlebury multi-view stereo benchmark) ships with the
+package. The Middlebury reader takes each view's depth range from the bounding box in that README.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+
+# The lite network at the photos' own 640x480, five views per depth map, the default fusion.
+DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=640, num_views=5, fusion="normal")
+
+
+def temple_dir() -> Path:
+    """Folder of the bundled temple images, ``templeSR_par.txt`` and README.txt."""
+    return Path(__file__).resolve().parent.parent / "data" / "templeSparseRing"
+
+
+def run_demo(out_dir: str | Path, config: ReconstructConfig = DEMO_CONFIG, quiet: bool = False) -> dict:
+    """Reconstruct the bundled temple into ``out_dir``; return the summary (see ``reconstruct``)."""
+    return reconstruct(temple_dir(), out_dir, config, quiet=quiet)

@@ -1,0 +1,288 @@
+"""``reconstruct``: photos / a COLMAP project / an MVSNet folder / a Middlebury set -> depth maps -> PLY.
+
+Stages (each resumable; see :mod:`mvsformerpp.inference.output_folder` for the output layout):
+
+1. input: auto-detect the layout; a plain photo folder first goes through structure-from-motion
+   (:mod:`.sfm`, kept in ``OUT/sfm``); a COLMAP project with distorted cameras is undistorted into
+   ``OUT/undistorted``;
+2. scene: user overrides (depth range, number of images), validation with clear messages, and the
+   MVSNet-layout copy of the cameras in ``OUT`` (``images/``, ``cams/``, ``pair.txt``, ``views.json``);
+3. depth: the network view by view at a working resolution (:mod:`mvsformerpp.inference`), with the
+   per-image feature cache; views already done with the same settings are skipped;
+4. fusion: the chosen filter over ``OUT`` into ``OUT/fused.ply``; then ``summary.json``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import torch
+
+from mvsformerpp.errors import FormatError, InputError, MVSFormerError
+from mvsformerpp.inference.output_folder import OutputFolder, disk_full_guard, scene_fingerprint, settings_hash
+from mvsformerpp.inference.resolution import available_memory_bytes, choose_long_side, plan_views
+from mvsformerpp.inference.runner import SceneInference
+from mvsformerpp.io.scene import Scene
+
+log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
+
+    preset: Literal["lite", "paper"] = "paper"
+    """Network preset (``mvsformerpp.build_model``); ``lite`` is a small network for CPU and tests."""
+    checkpoint: str | None = None
+    """Weights file matching the preset; None = the preset's default initialisation (random)."""
+    device: str = "cpu"
+    """torch device string, e.g. ``cpu``, ``cuda``, ``cuda:1``."""
+    precision: Literal["fp32", "bf16", "fp16"] = "fp32"
+    """Autocast precision of the network (the reference runs bf16 on GPU); cost volumes stay fp32."""
+    max_size: int | None = 1536
+    """Cap on the longer image side at the working resolution (never upscaled); None = no cap."""
+    memory_gb: float | None = None
+    """Memory budget of one forward; None = half of the device's free memory."""
+    num_views: int = 5
+    """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
+    num_depth: int = 192
+    """Depth-hypothesis count of the input range (only its ends are used by the cascade)."""
+    temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0)
+    """Per-stage softmax temperatures at inference (spec section 7)."""
+    depth_range: tuple[float, float] | None = None
+    """Override of every view's depth range (scene units); None = from the input."""
+    max_images: int | None = None
+    """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
+    fusion: Literal["normal", "dynamic", "gipuma"] = "normal"
+    """Fusion filter (``mvsformerpp.fusion``)."""
+    cache_mb: int = 2048
+    """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
+    seed: int = 0
+    """Seed of the random initialisation when no checkpoint is given (keeps resumed runs consistent)."""
+
+    def result_settings(self) -> dict:
+        """The fields that change the depth maps (not device or cache size, which only change speed)."""
+        d = dataclasses.asdict(self)
+        for k in ("device", "memory_gb", "cache_mb", "fusion"):
+            d.pop(k)
+        return d
+
+
+# ---------------------------------------------------------------------------------------------- input
+
+
+def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False) -> Scene:
+    """Load INPUT as a Scene, running SfM (photos) or undistortion (distorted COLMAP) into ``out``."""
+    from mvsformerpp.io import detect
+
+    path = Path(path)
+    if not path.exists():
+        raise InputError("no such file or folder", path)
+    layout = detect.detect_layout(path)
+    if layout == "images":
+        from mvsformerpp.pipelines.sfm import run_sfm
+
+        dense = run_sfm(path, out / "sfm", quiet=quiet)
+        return detect.load_scene(dense)
+    if layout == "colmap" and _colmap_is_distorted(path):
+        from mvsformerpp.io.colmap import undistort_colmap
+
+        target = out / "undistorted"
+        if not (target / "DONE").is_file():
+            log.info("undistorting the COLMAP project into %s", target)
+            undistort_colmap(path, target)
+            (target / "DONE").write_text("undistorted\n")
+        return detect.load_scene(target)
+    return detect.load_scene(path)
+
+
+def _colmap_is_distorted(project: Path) -> bool:
+    from mvsformerpp.io.colmap import find_colmap_model, read_model
+
+    model = read_model(find_colmap_model(project)[0])
+    used = {im.camera_id for im in model.images.values()}
+    return any(not cam.is_pinhole for cam in model.cameras.values() if cam.id in used)
+
+
+def prepare_scene(scene: Scene, config: ReconstructConfig) -> Scene:
+    """Apply the user's overrides and check that every view can be reconstructed."""
+    where = scene.root
+    views = list(scene.views)
+    if config.max_images is not None:
+        if config.max_images < 2:
+            raise InputError(f"--max-images must be at least 2, got {config.max_images}")
+        keep = connected_subset(scene, config.max_images)
+        new_index = {old: new for new, old in enumerate(keep)}
+        views = [dataclasses.replace(views[i], neighbors=[new_index[j] for j in views[i].neighbors if j in new_index])
+                 for i in keep]
+    if len(views) < 2:
+        raise InputError(f"the scene has {len(views)} view(s); multi-view stereo needs at least 2", where)
+    if config.depth_range is not None:
+        lo, hi = config.depth_range
+        views = [dataclasses.replace(v, depth_min=float(lo), depth_max=float(hi)) for v in views]
+    lonely = [v.name for v in views if not v.neighbors]
+    if lonely:
+        raise InputError(
+            f"view(s) {', '.join(lonely[:5])}{' ...' if len(lonely) > 5 else ''} have no neighbour views "
+            "(no overlapping view in pair.txt / the sparse model): add overlapping photos or fix pair.txt", where)
+    if config.depth_range is not None and not 0 < config.depth_range[0] < config.depth_range[1]:
+        raise InputError(f"--depth-range {config.depth_range[0]} {config.depth_range[1]} must satisfy 0 < min < max")
+    out = Scene(views=views, root=scene.root, source_format=scene.source_format)
+    out.validate(require_depth_range=True)
+    _check_images(out)
+    return out
+
+
+def connected_subset(scene: Scene, n: int) -> list[int]:
+    """Up to ``n`` view indices that overlap: view 0, then breadth-first over best neighbours; sorted."""
+    chosen: list[int] = []
+    queue = [0]
+    while queue and len(chosen) < n:
+        i = queue.pop(0)
+        if i in chosen:
+            continue
+        chosen.append(i)
+        queue.extend(j for j in scene.views[i].neighbors if j not in chosen)
+    for i in range(len(scene)):  # disconnected scenes: fill up in order
+        if len(chosen) >= n:
+            break
+        if i not in chosen:
+            chosen.append(i)
+    return sorted(chosen)
+
+
+def _check_images(scene: Scene) -> None:
+    """Every photo exists, is readable and has the size its camera says (header read only)."""
+    from mvsformerpp.io.images import image_size
+
+    for v in scene.views:
+        if not v.image_path.is_file():
+            raise InputError(f"image of view {v.name} is missing", v.image_path)
+        w, h = image_size(v.image_path)
+        if (w, h) != (v.width, v.height):
+            raise InputError(
+                f"image is {w}x{h} but its camera is for {v.width}x{v.height}: use the photos the cameras "
+                "were calibrated for", v.image_path)
+
+
+# ---------------------------------------------------------------------------------------------- model
+
+
+def build_network(config: ReconstructConfig) -> torch.nn.Module:
+    """The preset's network on the configured device, with the checkpoint's weights if one is given."""
+    import mvsformerpp
+
+    torch.manual_seed(config.seed)
+    model = mvsformerpp.build_model(config.preset)
+    if config.checkpoint is not None:
+        ckpt = Path(config.checkpoint)
+        if not ckpt.is_file():
+            raise InputError("checkpoint file not found", ckpt)
+        try:
+            mvsformerpp.load_checkpoint(model, ckpt)
+        except MVSFormerError:
+            raise
+        except (RuntimeError, KeyError, ValueError) as e:
+            raise FormatError(
+                f"checkpoint does not match the '{config.preset}' preset ({str(e).splitlines()[0][:300]}); "
+                "pass the preset it was trained with (--preset)", ckpt) from e
+    return model.to(torch.device(config.device)).eval()
+
+
+# ---------------------------------------------------------------------------------------------- main
+
+
+def reconstruct(input_path: str | Path, out_dir: str | Path, config: ReconstructConfig = ReconstructConfig(),
+                quiet: bool = False, model: torch.nn.Module | None = None) -> dict:
+    """Reconstruct INPUT into ``out_dir``; return the summary (also written to ``summary.json``).
+
+    ``model`` replaces the preset's network (already on the device), e.g. for tests or benchmarks.
+    Finished views are skipped on a repeated call with the same settings.
+    """
+    from tqdm import tqdm
+
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    folder = OutputFolder(out_dir)
+    full = load_input(input_path, folder.root, quiet=quiet)
+    fingerprint = scene_fingerprint(full)
+    folder.check_scene(fingerprint)
+    scene = prepare_scene(full, config)
+    timings["input_s"] = time.perf_counter() - t0
+
+    device = torch.device(config.device)
+    sizes = [(v.width, v.height) for v in scene.views]
+    budget = config.memory_gb * 2**30 if config.memory_gb else 0.5 * available_memory_bytes(device)
+    long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
+    plans = plan_views(sizes, long_side)
+    resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
+    state = settings_hash({**config.result_settings(), **resolved})
+
+    # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
+    from mvsformerpp.io.mvsnet import write_mvsnet_scene
+
+    with disk_full_guard(folder.root):
+        write_mvsnet_scene(scene, folder.root, copy_images=False, num_depth=config.num_depth)
+        for i, v in enumerate(scene.views):
+            folder.link_image(i, v.image_path)
+    folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
+    folder.write_json("config.json", {"config": dataclasses.asdict(config), "resolved": resolved,
+                                      "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
+                                      "source_format": full.source_format, "num_views_in_input": len(full)})
+
+    todo = [i for i in range(len(scene)) if not folder.view_done(i, state)]
+    t1 = time.perf_counter()
+    cache_stats = None
+    if todo:
+        if model is None:
+            model = build_network(config)
+        from mvsformerpp.io.images import read_image
+
+        runner = SceneInference(model, scene, plans, lambda i: read_image(scene.views[i].image_path),
+                                num_views=config.num_views, num_depth=config.num_depth,
+                                temperatures=config.temperatures, device=device, precision=config.precision,
+                                cache_bytes=config.cache_mb << 20)
+        for i in tqdm(todo, desc="Depth maps", unit="view", disable=quiet):
+            res = runner.infer(i)
+            folder.write_view(i, res.depth, res.confidence, state)
+        cache_stats = runner.cache.stats()
+    timings["depth_s"] = time.perf_counter() - t1
+    timings["views_computed"] = len(todo)
+
+    t2 = time.perf_counter()
+    ply = folder.root / "fused.ply"
+    fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
+    if not folder.fusion_done(fusion_state):
+        from mvsformerpp.pipelines.fuse import fuse
+
+        with disk_full_guard(ply):
+            fuse(folder.root, ply, _fusion_config(config.fusion), quiet=quiet)
+        folder.mark_fusion(fusion_state)
+    timings["fusion_s"] = time.perf_counter() - t2
+    timings["total_s"] = time.perf_counter() - t0
+
+    from mvsformerpp.io.ply import ply_points, read_ply
+
+    summary = {
+        "views": len(scene),
+        "points": int(len(ply_points(read_ply(ply)))),
+        "working_resolution": resolved,
+        "preset": config.preset,
+        "checkpoint": config.checkpoint,
+        "timings": {k: round(v, 3) for k, v in timings.items()},
+        "feature_cache": cache_stats,
+        "outputs": {"ply": str(ply), "depth_vis": str(folder.root / "depth_vis")},
+    }
+    folder.write_json("summary.json", summary)
+    return summary
+
+
+def _fusion_config(name: str):
+    from mvsformerpp import fusion
+
+    return fusion.get_config(name)

@@ -1,0 +1,73 @@
+"""Colour maps for depth and confidence previews (PNG), without matplotlib.
+
+The map is the perceptually ordered "turbo" rainbow, given here by its published polynomial
+approximation (Mikhailov 2019) so that no plotting library is needed.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from mvsformerpp.utils.atomic import atomic_open
+
+# Degree-5 polynomial fit of turbo per channel, coefficients c0..c5 (Mikhailov, Google AI blog 2019).
+_TURBO = np.array(
+    [
+        [0.13572138, 4.61539260, -42.66032258, 132.13108234, -152.94239396, 59.28637943],
+        [0.09140261, 2.19418839, 4.84296658, -14.18503333, 4.27729857, 2.82956604],
+        [0.10667330, 12.64194608, -60.58204836, 110.36276771, -89.90310912, 27.34824973],
+    ]
+)
+
+
+def turbo(x: np.ndarray) -> np.ndarray:
+    """Map values in [0, 1] (clipped) to RGB uint8 ``[..., 3]``."""
+    x = np.clip(np.asarray(x, dtype=np.float64), 0.0, 1.0)
+    powers = np.stack([x**k for k in range(6)], axis=-1)  # [..., 6]
+    rgb = np.clip(powers @ _TURBO.T, 0.0, 1.0)
+    return (rgb * 255.0 + 0.5).astype(np.uint8)
+
+
+def colorize(values: np.ndarray, vmin: float | None = None, vmax: float | None = None,
+             invalid: np.ndarray | None = None) -> np.ndarray:
+    """Colour-map a 2-D array to RGB uint8 ``[H, W, 3]``; ``invalid`` pixels (and non-finite ones) are black.
+
+    ``vmin``/``vmax`` default to the 2nd/98th percentiles of the valid values (robust to outliers).
+    """
+    v = np.asarray(values, dtype=np.float64)
+    if v.ndim != 2:
+        raise ValueError(f"colorize expects a 2-D array, got shape {v.shape}")
+    bad = ~np.isfinite(v)
+    if invalid is not None:
+        bad |= np.asarray(invalid, dtype=bool)
+    good = v[~bad]
+    if vmin is None or vmax is None:
+        lo, hi = (np.percentile(good, [2.0, 98.0]) if good.size else (0.0, 1.0))
+        vmin = lo if vmin is None else vmin
+        vmax = hi if vmax is None else vmax
+    span = vmax - vmin if vmax > vmin else 1.0
+    rgb = turbo((np.where(bad, vmin, v) - vmin) / span)
+    rgb[bad] = 0
+    return rgb
+
+
+def depth_to_png(path: str | Path, depth: np.ndarray) -> None:
+    """Write a colour-mapped depth preview (near = blue, far = red); 0 = black."""
+    depth = np.asarray(depth)
+    rgb = colorize(depth, invalid=~(depth > 0))
+    save_png(path, rgb)
+
+
+def confidence_to_png(path: str | Path, confidence: np.ndarray) -> None:
+    """Write a colour-mapped confidence preview on the fixed scale [0, 1]."""
+    save_png(path, colorize(confidence, 0.0, 1.0))
+
+
+def save_png(path: str | Path, rgb: np.ndarray) -> None:
+    """Write RGB uint8 ``[H, W, 3]`` as PNG, atomically."""
+    from PIL import Image
+
+    with atomic_open(path, "wb") as f:
+        Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8), mode="RGB").save(f, format="PNG")

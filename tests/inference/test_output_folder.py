@@ -1,0 +1,83 @@
+import errno
+import json
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.inference import output_folder as of
+from mvsformerpp.io.pfm import read_pfm
+from mvsformerpp.io.scene import Scene, View
+from mvsformerpp.utils.colormap import colorize, turbo
+
+
+def tiny_scene(shift=0.0):
+    v = [View(name=f"v{i}", image_path=f"v{i}.png", width=8, height=6, K=np.eye(3), R=np.eye(3),
+              t=[i + shift, 0, 0]) for i in range(2)]
+    return Scene(v)
+
+
+def test_turbo_endpoints_and_monotone_hue():
+    out = turbo(np.array([0.15, 0.5, 0.9, -1.0, 2.0]))
+    assert out.shape == (5, 3) and out.dtype == np.uint8
+    rgb = out.astype(int)
+    assert rgb[0, 2] > rgb[0, 0] + 100  # blue end
+    assert rgb[2, 0] > rgb[2, 2] + 100  # red end
+    assert rgb[1, 1] > 200  # green-yellow middle
+    assert (rgb[3] == turbo(np.array([0.0]))[0]).all() and (rgb[4] == turbo(np.array([1.0]))[0]).all()  # clipped
+
+
+def test_colorize_blacks_out_invalid_pixels():
+    d = np.array([[0.0, 1.0], [2.0, np.nan]])
+    out = colorize(d, invalid=d <= 0)
+    assert (out[0, 0] == 0).all() and (out[1, 1] == 0).all() and out[0, 1].any()
+
+
+def test_write_view_and_progress(tmp_path):
+    folder = of.OutputFolder(tmp_path / "out")
+    depth = np.random.default_rng(0).uniform(1, 2, (6, 8)).astype(np.float32)
+    conf = np.full((6, 8), 0.5, np.float32)
+    assert not folder.view_done(0, "s1")
+    folder.write_view(0, depth, conf, "s1")
+    assert folder.view_done(0, "s1") and not folder.view_done(0, "s2")
+    np.testing.assert_array_equal(read_pfm(folder.paths(0)["depth"]), depth)
+    assert Image.open(folder.paths(0)["depth_vis"]).size == (8, 6)
+    assert json.loads((tmp_path / "out" / "progress.json").read_text())["views"] == {"0": "s1"}
+    # A view whose file vanished is not done, whatever progress.json says.
+    folder.paths(0)["confidence_vis"].unlink()
+    assert not of.OutputFolder(tmp_path / "out").view_done(0, "s1")
+
+
+def test_scene_fingerprint_and_refusal(tmp_path):
+    a, b = of.scene_fingerprint(tiny_scene()), of.scene_fingerprint(tiny_scene(0.5))
+    assert a != b and a == of.scene_fingerprint(tiny_scene())
+    folder = of.OutputFolder(tmp_path)
+    folder.check_scene(a)  # empty folder: fine
+    folder.write_json("config.json", {"scene_fingerprint": a})
+    folder.check_scene(a)
+    with pytest.raises(InputError, match="different scene"):
+        folder.check_scene(b)
+
+
+def test_output_path_that_is_a_file(tmp_path):
+    (tmp_path / "f").write_text("x")
+    with pytest.raises(InputError, match="not a folder"):
+        of.OutputFolder(tmp_path / "f")
+
+
+def test_link_image_links_and_disk_full_is_reported(tmp_path, monkeypatch):
+    src = tmp_path / "photo.PNG"
+    src.write_bytes(b"123")
+    folder = of.OutputFolder(tmp_path / "out")
+    dst = folder.link_image(3, src)
+    assert dst.name == "00000003.png" and dst.read_bytes() == b"123"
+    assert dst.stat().st_ino == src.stat().st_ino  # a hard link on the same file system
+
+    def full(*a, **k):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(of, "write_pfm", full)
+    with pytest.raises(of.DiskFullError, match="disk is full"):
+        folder.write_view(0, np.ones((2, 2)), np.ones((2, 2)), "s")
+    assert not folder.view_done(0, "s")

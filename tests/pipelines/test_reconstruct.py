@@ -1,0 +1,227 @@
+"""End-to-end ``reconstruct`` on the real Middlebury temple (few views, small resolution)."""
+
+import dataclasses
+import importlib.util
+import json
+import shutil
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mvsformerpp.errors import InputError, MVSFormerError
+from mvsformerpp.io.mvsnet import read_cam, read_pair, write_mvsnet_scene
+from mvsformerpp.io.pfm import read_pfm
+from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
+from mvsformerpp.pipelines.demo import temple_dir
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+
+TEMPLE = temple_dir()
+FAST = ReconstructConfig(preset="lite", max_size=128, num_views=3, num_depth=32, cache_mb=64)
+
+
+def fake_model(**kw):
+    name = "recon_fake_model"
+    if name not in sys.modules:
+        path = Path(__file__).resolve().parents[1] / "inference" / "fake_model.py"
+        spec = importlib.util.spec_from_file_location(name, path)
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name].FakeMVSModel(**kw)
+
+
+def temple_subset(dst: Path, names: list[int]) -> Path:
+    """A Middlebury set with only the given temple views (1-based numbers), README included."""
+    dst.mkdir(parents=True)
+    lines = (TEMPLE / "templeSR_par.txt").read_text().splitlines()[1:]
+    keep = [ln for ln in lines if ln.split() and int(ln.split()[0][8:12]) in names]
+    (dst / "templeSR_par.txt").write_text(f"{len(keep)}\n" + "\n".join(keep) + "\n")
+    for ln in keep:
+        shutil.copy(TEMPLE / ln.split()[0], dst / ln.split()[0])
+    shutil.copy(TEMPLE / "README.txt", dst / "README.txt")
+    return dst
+
+
+def outputs(out: Path) -> dict[str, bytes]:
+    return {str(p.relative_to(out)): p.read_bytes() for p in sorted(out.rglob("*")) if p.is_file()}
+
+
+@pytest.fixture
+def scene4(tmp_path):
+    return temple_subset(tmp_path / "temple4", [1, 2, 3, 4])
+
+
+def test_end_to_end_temple_with_the_lite_network(scene4, tmp_path):
+    out = tmp_path / "out"
+    summary = reconstruct(scene4, out, FAST, quiet=True)
+    assert summary["views"] == 4
+    for i in range(4):
+        s = f"{i:08d}"
+        depth = read_pfm(out / "depth_est" / f"{s}.pfm")
+        conf = read_pfm(out / "confidence" / f"{s}.pfm")
+        assert depth.shape == conf.shape == (480, 640)  # original resolution, padding cropped out
+        assert np.isfinite(depth).all() and (depth >= 0).all() and (depth > 0).mean() > 0.99
+        assert ((conf >= 0) & (conf <= 1)).all()
+        for sub in ("depth_vis", "confidence_vis"):
+            assert (out / sub / f"{s}.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+        cam = read_cam(out / "cams" / f"{s}_cam.txt")
+        assert cam.K[0, 0] == pytest.approx(1520.4) and cam.depth_min > 0
+        assert (out / "images" / f"{s}.png").is_file()
+    assert set(read_pair(out / "pair.txt")) == {0, 1, 2, 3}
+    assert json.loads((out / "views.json").read_text())["00000000"] == "templeSR0001"
+    cloud = read_ply(out / "fused.ply")
+    assert len(ply_points(cloud)) == summary["points"] and ply_colors(cloud) is not None
+    assert (out / "fused.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
+    saved = json.loads((out / "config.json").read_text())
+    assert saved["config"]["preset"] == "lite" and saved["resolved"]["canvas"] == [128, 128]
+    assert json.loads((out / "summary.json").read_text())["views"] == 4
+    assert not list(out.rglob("*.tmp"))
+
+
+def test_fake_network_geometry_survives_the_round_trip(scene4, tmp_path):
+    """A network that returns the exact depth of a plane gives that depth at full resolution."""
+    from mvsformerpp.io.detect import load_scene
+
+    scene = load_scene(scene4)
+    # The plane through the temple's bounding-box centre, facing the first camera.
+    view = scene.views[0]
+    normal = view.R[2]
+    offset = float(normal @ np.array([-0.022, 0.102, 0.025]))
+    out = tmp_path / "out"
+    cfg = dataclasses.replace(FAST, max_size=320, depth_range=(0.3, 0.9))
+    reconstruct(scene4, out, cfg, quiet=True, model=fake_model(plane_normal=tuple(normal), plane_offset=offset))
+    depth = read_pfm(out / "depth_est" / "00000000.pfm")
+    v, u = np.mgrid[0:480, 0:640]
+    rays = np.stack([u + 0.5, v + 0.5, np.ones_like(u)], -1) @ np.linalg.inv(view.K).T
+    nc = view.R @ normal
+    truth = (offset + nc @ view.t) / (rays @ nc)
+    np.testing.assert_allclose(depth[2:-2, 2:-2], truth[2:-2, 2:-2], rtol=1e-4)
+
+
+class Interrupt(KeyboardInterrupt):
+    pass
+
+
+def test_resume_after_interruption_computes_only_missing_views(scene4, tmp_path):
+    out = tmp_path / "out"
+    model = fake_model()
+    original_forward = model.forward
+
+    def dies_on_third(*a, **kw):
+        if model.forwards == 2:
+            raise Interrupt
+        return original_forward(*a, **kw)
+
+    model.forward = dies_on_third
+    with pytest.raises(KeyboardInterrupt):
+        reconstruct(scene4, out, FAST, quiet=True, model=model)
+    assert sorted(p.name for p in (out / "depth_est").iterdir()) == ["00000000.pfm", "00000001.pfm"]
+    assert not list(out.rglob("*.tmp")) and not (out / "fused.ply").exists()
+    before = outputs(out)
+
+    resumed = fake_model()
+    summary = reconstruct(scene4, out, FAST, quiet=True, model=resumed)
+    assert resumed.forwards == 2 and summary["timings"]["views_computed"] == 2
+    after = outputs(out)
+    for name in ("depth_est/00000000.pfm", "confidence/00000001.pfm", "depth_vis/00000000.png"):
+        assert after[name] == before[name]
+    # A third call has nothing left to do.
+    again = fake_model()
+    reconstruct(scene4, out, FAST, quiet=True, model=again)
+    assert again.forwards == 0
+    # Changing a setting that changes the depth maps recomputes them.
+    changed = fake_model()
+    reconstruct(scene4, out, dataclasses.replace(FAST, num_views=2), quiet=True, model=changed)
+    assert changed.forwards == 4
+
+
+def test_refuses_an_output_folder_holding_another_scene(scene4, tmp_path):
+    out = tmp_path / "out"
+    reconstruct(scene4, out, FAST, quiet=True, model=fake_model())
+    before = outputs(out)
+    other = temple_subset(tmp_path / "other", [5, 6, 7])
+    with pytest.raises(InputError, match="different scene"):
+        reconstruct(other, out, FAST, quiet=True, model=fake_model())
+    assert outputs(out) == before
+
+
+def test_disk_full_keeps_earlier_outputs_and_resumes(scene4, tmp_path, monkeypatch):
+    import errno
+
+    from mvsformerpp.inference import output_folder
+
+    out = tmp_path / "out"
+    real = output_folder.write_pfm
+    calls = []
+
+    def full_disk(path, arr):
+        calls.append(path)
+        if len(calls) == 3:  # the depth map of the second view
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, arr)
+
+    monkeypatch.setattr(output_folder, "write_pfm", full_disk)
+    with pytest.raises(output_folder.DiskFullError, match="disk is full"):
+        reconstruct(scene4, out, FAST, quiet=True, model=fake_model())
+    assert (out / "depth_est" / "00000000.pfm").is_file() and not (out / "depth_est" / "00000001.pfm").exists()
+    monkeypatch.setattr(output_folder, "write_pfm", real)
+    model = fake_model()
+    reconstruct(scene4, out, FAST, quiet=True, model=model)
+    assert model.forwards == 3
+
+
+@pytest.mark.parametrize(
+    "case, match",
+    [
+        ("missing_image", "templeSR0002"),
+        ("corrupt_image", "image"),
+        ("one_view", "at least 2"),
+        ("empty_range", "0 < min < max"),
+        ("negative_range", "0 < min < max"),
+        ("missing_input", "no such file"),
+    ],
+)
+def test_bad_input_gets_a_clear_error(scene4, tmp_path, case, match):
+    cfg = FAST
+    src = scene4
+    if case == "missing_image":
+        (scene4 / "templeSR0002.png").unlink()
+    elif case == "corrupt_image":
+        (scene4 / "templeSR0003.png").write_bytes(b"not a png at all")
+    elif case == "one_view":
+        src = temple_subset(tmp_path / "one", [1])
+    elif case == "empty_range":
+        cfg = dataclasses.replace(FAST, depth_range=(0.6, 0.5))
+    elif case == "negative_range":
+        cfg = dataclasses.replace(FAST, depth_range=(-1.0, 0.5))
+    elif case == "missing_input":
+        src = tmp_path / "nowhere"
+    with pytest.raises(MVSFormerError, match=match):
+        reconstruct(src, tmp_path / "out", cfg, quiet=True, model=fake_model())
+
+
+def test_views_without_neighbours_and_size_mismatch(tmp_path, scene4):
+    from mvsformerpp.io.detect import load_scene
+
+    mvs = tmp_path / "mvs"
+    write_mvsnet_scene(load_scene(scene4), mvs)
+    pair = (mvs / "pair.txt").read_text().splitlines()
+    pair[2] = "0"  # view 0 gets an empty neighbour list
+    (mvs / "pair.txt").write_text("\n".join(pair) + "\n")
+    with pytest.raises(InputError, match="no neighbour"):
+        reconstruct(mvs, tmp_path / "o1", FAST, quiet=True, model=fake_model())
+    write_mvsnet_scene(load_scene(scene4), mvs)
+    Image.open(mvs / "images" / "00000001.png").resize((500, 300)).save(mvs / "images" / "00000001.png")
+    with pytest.raises(InputError):
+        reconstruct(mvs, tmp_path / "o2", FAST, quiet=True, model=fake_model())
+
+
+def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
+    from mvsformerpp.cli import main
+
+    rc = main(["reconstruct", str(tmp_path / "nowhere"), "-o", str(tmp_path / "out"), "--quiet"])
+    assert rc == 2
+    err = capsys.readouterr().err
+    assert err.startswith("error:") and "nowhere" in err and "Traceback" not in err
