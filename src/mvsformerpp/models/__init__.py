@@ -1,0 +1,6 @@
+"""The MVSFormer++ network: tensors in, tensors out (no files, no CLI)."""
+
+from mvsformerpp.models.config import PRESETS, ModelConfig, get_config
+from mvsformerpp.models.mvsformer import MVSFormerPP, build_model
+
+__all__ = ["MVSFormerPP", "ModelConfig", "PRESETS", "build_model", "get_config"]
