@@ -37,6 +37,7 @@ class MVSFormerPP(nn.Module):
         )
         if cfg.freeze_vit:
             self.vit.requires_grad_(False)
+        self.vit.mask_token.requires_grad_(False)  # in DINOv2 checkpoints, never used here
         self.set_attention_backend(cfg.attention_backend)
 
     def set_attention_backend(self, backend: str) -> None:
