@@ -84,7 +84,8 @@ def test_safetensors_round_trip_with_config(tmp_path, lite):
     for k, v in lite.state_dict().items():
         assert torch.equal(again.state_dict()[k], v)
     fresh = load_checkpoint(build_model("lite"), path)
-    assert torch.equal(fresh.state_dict()["encoder.conv00.conv.weight"], lite.state_dict()["encoder.conv00.conv.weight"])
+    key = "encoder.conv00.conv.weight"
+    assert torch.equal(fresh.state_dict()[key], lite.state_dict()[key])
 
 
 def test_mismatched_checkpoint_lists_keys(tmp_path, lite):
