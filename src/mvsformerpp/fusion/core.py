@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from mvsformerpp.fusion.config import FusionConfig
+from mvsformerpp.geometry.camera import backproject, project
 
 
 @dataclass
@@ -32,22 +33,6 @@ class FusionView:
     @property
     def center(self) -> torch.Tensor:
         return -self.E[:3, :3].T @ self.E[:3, 3]
-
-
-def backproject(K, E, u, v, depth) -> torch.Tensor:
-    """World points [N,3] of continuous pixel coordinates (u, v) [N] at z-depth [N]."""
-    rays = torch.stack((u, v, torch.ones_like(u)), dim=1) @ torch.linalg.inv(K).T
-    cam = rays * depth[:, None]
-    return (cam - E[:3, 3]) @ E[:3, :3]  # R^T (X_cam - t), row-wise
-
-
-def project(K, E, pts):
-    """Continuous pixel coordinates (u, v) and z-depth of world points [N,3]."""
-    cam = pts @ E[:3, :3].T + E[:3, 3]
-    z = cam[:, 2]
-    zs = torch.where(z.abs() < 1e-12, torch.full_like(z, 1e-12), z)
-    uvw = cam @ K.T
-    return uvw[:, 0] / zs, uvw[:, 1] / zs, z
 
 
 def sample(values: torch.Tensor, u: torch.Tensor, v: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
