@@ -25,7 +25,8 @@ def depth_metrics(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = No
     pred, gt = np.asarray(pred, np.float64), np.asarray(gt, np.float64)
     if pred.shape != gt.shape:
         raise InputError(
-            f"prediction ({pred.shape[1]}x{pred.shape[0]}) and ground truth ({gt.shape[1]}x{gt.shape[0]}) differ in size"
+            f"prediction ({pred.shape[1]}x{pred.shape[0]}) and ground truth "
+            f"({gt.shape[1]}x{gt.shape[0]}) differ in size"
         )
     valid = np.isfinite(gt) & (gt > 0)
     if mask is not None:
