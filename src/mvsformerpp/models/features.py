@@ -68,7 +68,11 @@ def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.T
     frozen = not any(p.requires_grad for p in vit.parameters())
     with torch.set_grad_enabled(torch.is_grad_enabled() and not frozen):
         taps = vit.forward_taps(vit_imgs)
-    return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), tuple(encoder(imgs)))
+    if encoder.training:
+        fpn = tuple(encoder(imgs))
+    else:  # image by image: same result (running statistics), smaller peak memory
+        fpn = tuple(torch.cat(level) for level in zip(*(encoder(imgs[i:i + 1]) for i in range(N))))
+    return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), fpn)
 
 
 def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt: FMTWithPathway,
@@ -84,6 +88,12 @@ def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt:
     conv01, conv11, conv21, conv31 = feats.fpn
     if vit_feat.shape[-2:] != conv31.shape[-2:]:
         vit_feat = F.interpolate(vit_feat, size=conv31.shape[-2:], mode="bilinear", align_corners=False)
-    stages = decoder(conv01, conv11, conv21, conv31 + vit_feat)
+    conv31 = conv31 + vit_feat
+    if decoder.training:  # BatchNorm batch statistics over all B*V images, as the reference
+        stages = decoder(conv01, conv11, conv21, conv31)
+    else:  # image by image: the same result (running statistics) with a much smaller working set
+        per_image = [decoder(conv01[i:i + 1], conv11[i:i + 1], conv21[i:i + 1], conv31[i:i + 1])
+                     for i in range(B * V)]
+        stages = [torch.cat(level) for level in zip(*per_image)]
     stages = [s.reshape(B, V, *s.shape[1:]) for s in stages]
     return fmt(stages)

@@ -103,7 +103,15 @@ class FMTWithPathway(nn.Module):
         ref, src = self.FMT(f1[:, 0], f1[:, 1:].flatten(0, 1) if V > 1 else None)
         s1 = ref[:, None] if src is None else torch.cat([ref[:, None], src.reshape(B, V - 1, *src.shape[1:])], 1)
         s1 = s1.flatten(0, 1)
-        s2 = self.smooth_1(self._upsample_add(self.dim_reduction_1(s1), f2.flatten(0, 1)))
-        s3 = self.smooth_2(self._upsample_add(self.dim_reduction_2(s2), f3.flatten(0, 1)))
-        s4 = self.smooth_3(self._upsample_add(self.dim_reduction_3(s3), f4.flatten(0, 1)))
+        f2, f3, f4 = f2.flatten(0, 1), f3.flatten(0, 1), f4.flatten(0, 1)
+        # The pathway is per image; without autograd run it image by image to bound the working set.
+        step = len(s1) if torch.is_grad_enabled() else 1
+        outs = []
+        for i in range(0, len(s1), step):
+            j = slice(i, i + step)
+            s2 = self.smooth_1(self._upsample_add(self.dim_reduction_1(s1[j]), f2[j]))
+            s3 = self.smooth_2(self._upsample_add(self.dim_reduction_2(s2), f3[j]))
+            s4 = self.smooth_3(self._upsample_add(self.dim_reduction_3(s3), f4[j]))
+            outs.append((s2, s3, s4))
+        s2, s3, s4 = (torch.cat(level) for level in zip(*outs))
         return [s.reshape(B, V, *s.shape[1:]) for s in (s1, s2, s3, s4)]

@@ -60,6 +60,8 @@ class CostRegNet3D(nn.Module):
         self.prob = nn.Conv3d(base, 1, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if not self.training and x.device.type == "cpu":
+            return _fast_forward_3d(self, x)  # the same function, faster on CPU (see below)
         c2 = self.conv2(self.conv1(x))
         c4 = self.conv4(self.conv3(c2))
         y = self.conv6(self.conv5(c4))
@@ -67,3 +69,69 @@ class CostRegNet3D(nn.Module):
         y = c2 + self.conv9(y)
         y = x + self.conv11(y)
         return self.prob(y)
+
+
+# ------------------------------------------------------------------------------------------------
+# Inference fast path for the depth-preserving U-Net (stages 3-4, D = 8 or 4 hypotheses).
+# A 3-D convolution whose depth kernel is 3 (padding 1, stride 1 in depth) equals a 2-D convolution
+# over channels (c, d) with a depth-banded weight: W2[(o, d'), (c, d)] = W[o, c, d - d' + 1] for
+# |d - d'| <= 1. oneDNN runs these wider 2-D convolutions several times faster than the thin 3-D ones;
+# the result is the same up to float summation order.
+
+_band_cache: dict = {}
+
+
+def _banded(weight: torch.Tensor, D: int, transposed: bool) -> torch.Tensor:
+    key = (weight.data_ptr(), weight._version, D, transposed, weight.device, weight.dtype)
+    if key not in _band_cache:
+        if len(_band_cache) > 64:
+            _band_cache.clear()
+        a, b, _, kh, kw = weight.shape  # conv: [out, in, 3, kh, kw]; transposed: [in, out, 3, kh, kw]
+        W2 = weight.new_zeros(a, D, b, D, kh, kw)
+        for d_out in range(D):
+            for k in range(3):
+                d_in = d_out + k - 1
+                if 0 <= d_in < D:
+                    if transposed:  # out[d'] += in[d] w[d' - d + 1]: index by (in=d, out=d')
+                        W2[:, d_in, :, d_out] = weight[:, :, 2 - k]
+                    else:
+                        W2[:, d_out, :, d_in] = weight[:, :, k]
+        _band_cache[key] = W2.reshape(a * D, b * D, kh, kw)
+    return _band_cache[key]
+
+
+def _conv3d_2d(x: torch.Tensor, conv: torch.nn.Conv3d) -> torch.Tensor:
+    B, C, D, H, W = x.shape
+    y = torch.nn.functional.conv2d(x.reshape(B, C * D, H, W), _banded(conv.weight, D, False), None,
+                                   stride=conv.stride[1:], padding=conv.padding[1:])
+    return y.reshape(B, -1, D, *y.shape[-2:])
+
+
+def _deconv3d_2d(x: torch.Tensor, conv: torch.nn.ConvTranspose3d) -> torch.Tensor:
+    B, C, D, H, W = x.shape
+    y = torch.nn.functional.conv_transpose2d(x.reshape(B, C * D, H, W), _banded(conv.weight, D, True),
+                                             stride=conv.stride[1:], padding=conv.padding[1:],
+                                             output_padding=conv.output_padding[1:])
+    return y.reshape(B, -1, D, *y.shape[-2:])
+
+
+def _bn_relu(x: torch.Tensor, bn: torch.nn.BatchNorm3d) -> torch.Tensor:
+    return torch.relu(torch.nn.functional.batch_norm(x, bn.running_mean, bn.running_var, bn.weight, bn.bias,
+                                                     False, 0.0, bn.eps))
+
+
+def _fast_forward_3d(net: CostRegNet3D, x: torch.Tensor) -> torch.Tensor:
+    def block(layer, y):
+        return _bn_relu(_conv3d_2d(y, layer.conv), layer.bn)
+
+    def up(seq, y):
+        return _bn_relu(_deconv3d_2d(y, seq[0]), seq[1])
+
+    c2 = block(net.conv2, block(net.conv1, x))
+    c4 = block(net.conv4, block(net.conv3, c2))
+    y = block(net.conv6, block(net.conv5, c4))
+    y = c4 + up(net.conv7, y)
+    y = c2 + up(net.conv9, y)
+    y = x + up(net.conv11, y)
+    return net.prob(y)
+
