@@ -114,7 +114,8 @@ def main() -> None:
         off = OFFICIAL.get(r["size"])
         vt = f"{r['cold_seconds'] / off[0]:.2f}x" if off and a.device == "cpu" else "-"
         vm = f"{r['peak_rss_gb'] / off[1]:.2f}x" if off and a.device == "cpu" else "-"
-        print(f"{r['size']:>10} {r['precision']:>5} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} {r.get('gflop', float('nan')):>7.0f} "
+        print(f"{r['size']:>10} {r['precision']:>5} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} "
+              f"{r.get('gflop', float('nan')):>7.0f} "
               f"{floor:>8.2f} {r['seconds'] / floor:>8.2f} {r['peak_rss_gb']:>11.2f} {vt:>16} {vm:>15}")
 
 
