@@ -257,3 +257,28 @@ def test_cli_reports_bad_input_with_exit_code_2(tmp_path, capsys):
     assert rc == 2
     err = capsys.readouterr().err
     assert err.startswith("error:") and "nowhere" in err and "Traceback" not in err
+
+
+def test_demo_command_reconstructs_the_temple_and_is_honest_about_weights(tmp_path, capsys):
+    needs_network()
+    needs_fusion()
+    from mvsformerpp.cli import main
+
+    out = tmp_path / "demo"
+    rc = main(["demo", "-o", str(out), "--max-images", "3", "--max-size", "128"])
+    assert rc == 0
+    text = capsys.readouterr().out
+    assert "NOT meaningful" in text and str(out / "fused.ply") in text and str(out / "depth_vis") in text
+    assert "README.txt" in text  # points to the data's attribution
+    assert len(list((out / "depth_est").glob("*.pfm"))) == 3
+
+
+def test_cli_reconstruct_quiet_depth_only(scene4, tmp_path, capsys):
+    needs_network()
+    from mvsformerpp.cli import main
+
+    out = tmp_path / "out"
+    rc = main(["reconstruct", str(scene4), "-o", str(out), "--preset", "lite", "--max-size", "128", "--views", "2",
+               "--fusion", "none", "--quiet"])
+    assert rc == 0 and capsys.readouterr().out == ""
+    assert len(list((out / "depth_est").glob("*.pfm"))) == 4 and not (out / "fused.ply").exists()
