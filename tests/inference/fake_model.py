@@ -57,6 +57,6 @@ class FakeMVSModel(torch.nn.Module):
         depth = (self.d + nc @ t) / (rays @ nc)
         depth = depth.clamp(depth_values[0, 0].item(), depth_values[0, -1].item()).float()[None]
         c = image_features.coarse.view(B, V, 3, H // 8, W // 8).mean(2)
-        conf = torch.sigmoid(c[:, 0] - c[:, 1:].mean(1))
+        conf = 0.6 + 0.4 * torch.sigmoid(c[:, 0] - c[:, 1:].mean(1))  # in (0.6, 1): passes fusion filters
         conf = F.interpolate(conf[:, None], size=(H, W), mode="nearest")[:, 0]
         return {"depth": depth, "photometric_confidence": conf}

@@ -33,8 +33,8 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help="override every view's depth range (scene units)")
     g.add_argument("--max-images", type=int, metavar="N",
                    help="use only N overlapping views: the first view and its best neighbours")
-    g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma"), default=_DEFAULT.fusion,
-                   help=f"fusion filter (default: {_DEFAULT.fusion})")
+    g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "none"), default=_DEFAULT.fusion,
+                   help=f"fusion filter (default: {_DEFAULT.fusion}); 'none' writes the depth maps only")
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
                    help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
     g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
@@ -50,8 +50,11 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
 
 
 def print_summary(summary: dict, out) -> None:
-    print(f"{summary['views']} depth maps and a fused cloud of {summary['points']} points in {out}")
-    print(f"  point cloud : {summary['outputs']['ply']}")
+    if summary["points"] is None:
+        print(f"{summary['views']} depth maps in {out} (no fusion; run 'mvsformerpp fuse {out}' to fuse them)")
+    else:
+        print(f"{summary['views']} depth maps and a fused cloud of {summary['points']} points in {out}")
+        print(f"  point cloud : {summary['outputs']['ply']}")
     print(f"  depth images: {summary['outputs']['depth_vis']}")
     print(f"  time        : {summary['timings']['total_s']:.1f} s")
 

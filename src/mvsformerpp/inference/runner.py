@@ -98,7 +98,8 @@ class SceneInference:
         self.temperatures = list(temperatures)
         self.device = torch.device(device)
         self.precision = precision
-        self.use_cache = cache_bytes > 0
+        # A network without a separate per-image encoder runs without the cache.
+        self.use_cache = cache_bytes > 0 and callable(getattr(model, "encode_images", None))
         self.cache = FeatureCache(self._encode, cache_bytes)
 
     def _autocast(self):

@@ -58,8 +58,8 @@ class ReconstructConfig:
     """Override of every view's depth range (scene units); None = from the input."""
     max_images: int | None = None
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
-    fusion: Literal["normal", "dynamic", "gipuma"] = "normal"
-    """Fusion filter (``mvsformerpp.fusion``)."""
+    fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
+    """Fusion filter (``mvsformerpp.fusion``); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
     cache_mb: int = 2048
     """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
     seed: int = 0
@@ -256,27 +256,30 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
 
     t2 = time.perf_counter()
     ply = folder.root / "fused.ply"
-    fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
-    if not folder.fusion_done(fusion_state):
-        from mvsformerpp.pipelines.fuse import fuse
+    points = None
+    if config.fusion != "none":
+        fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
+        if not folder.fusion_done(fusion_state):
+            from mvsformerpp.pipelines.fuse import fuse
 
-        with disk_full_guard(ply):
-            fuse(folder.root, ply, _fusion_config(config.fusion), quiet=quiet)
-        folder.mark_fusion(fusion_state)
+            with disk_full_guard(ply):
+                fuse(folder.root, ply, _fusion_config(config.fusion), quiet=quiet)
+            folder.mark_fusion(fusion_state)
+        from mvsformerpp.io.ply import ply_points, read_ply
+
+        points = int(len(ply_points(read_ply(ply))))
     timings["fusion_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
 
-    from mvsformerpp.io.ply import ply_points, read_ply
-
     summary = {
         "views": len(scene),
-        "points": int(len(ply_points(read_ply(ply)))),
+        "points": points,
         "working_resolution": resolved,
         "preset": config.preset,
         "checkpoint": config.checkpoint,
         "timings": {k: round(v, 3) for k, v in timings.items()},
         "feature_cache": cache_stats,
-        "outputs": {"ply": str(ply), "depth_vis": str(folder.root / "depth_vis")},
+        "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis")},
     }
     folder.write_json("summary.json", summary)
     return summary
