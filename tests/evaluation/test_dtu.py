@@ -78,6 +78,13 @@ def reference_dtu(pred, gt, mask, bb, res, plane, dst=0.2, max_dist=20.0):
     in_mask = np.array(in_mask)
     d_data = np.minimum(cdist(q, gt).min(axis=1), max_dist)
     d_stl = np.minimum(cdist(gt, q).min(axis=1), max_dist)
+    # MaxDistCP.m: Qfrom points outside the MaxDist blocks tiling space from BB(1,:) keep Dist = MaxDist.
+    blocks = np.floor((bb[1] - bb[0]) / max_dist)
+    for d_set, pts in ((d_data, q), (d_stl, gt)):
+        for i, p in enumerate(pts):
+            b = np.floor((p - bb[0]) / max_dist)
+            if not all(0 <= b[k] <= blocks[k] for k in range(3)):
+                d_set[i] = max_dist
     above = gt @ plane[:3] + plane[3] > 0
     acc = d_data[in_mask & (d_data < max_dist)].mean()
     comp = d_stl[above & (d_stl < max_dist)].mean()
@@ -87,6 +94,8 @@ def reference_dtu(pred, gt, mask, bb, res, plane, dst=0.2, max_dist=20.0):
 def test_agrees_with_brute_force_reference():
     rng = np.random.default_rng(5)
     gt = rng.uniform(0, 30, size=(700, 3)) * [1, 1, 0.1]
+    gt[:20, 0] = rng.uniform(-8, -3, size=20)  # below BB_min in x: outside MaxDistCP's blocks, ignored
+    gt[20:40, 0] = rng.uniform(41, 45, size=20)  # past the last block, which ends at BB_min + 2 * 20 = 38 mm
     pred = np.concatenate([gt[:400] + rng.normal(scale=0.3, size=(400, 3)), rng.uniform(-10, 40, size=(150, 3)),
                            gt[:100] + rng.normal(scale=0.05, size=(100, 3))])
     bb = np.array([[-2.0, -2, -2], [32, 32, 5]])

@@ -56,6 +56,16 @@ def load_cloud(path: str | Path, name: str = "point") -> np.ndarray:
     return check_points(points, name, path)
 
 
+def build_tree(points: np.ndarray) -> cKDTree:
+    """KD-tree for nearest-neighbour queries on a surface sample.
+
+    Sliding-midpoint splits (``balanced_tree=False``) rather than median splits: on clouds sampled
+    from surfaces, queries far off the surface (outliers) are about 10x faster this way, and the
+    build is faster too.
+    """
+    return cKDTree(np.asarray(points, dtype=np.float64), balanced_tree=False, compact_nodes=False)
+
+
 def nearest_distances(
     query: np.ndarray,
     reference: np.ndarray | cKDTree,
@@ -70,7 +80,7 @@ def nearest_distances(
     (so the result is ``min(true distance, max_dist)``, as the DTU MaxDistCP routine does).
     Returns [N] float64.
     """
-    tree = reference if isinstance(reference, cKDTree) else cKDTree(np.asarray(reference, dtype=np.float64))
+    tree = reference if isinstance(reference, cKDTree) else build_tree(reference)
     query = np.asarray(query, dtype=np.float64)
     out = np.empty(len(query), dtype=np.float64)
     bound = float(max_dist)

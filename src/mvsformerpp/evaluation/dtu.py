@@ -11,7 +11,8 @@ Follows the DTU MVS benchmark's MATLAB code (``BaseEvalMain_web.m``, ``PointComp
 Steps for one scan: thin the prediction to ``dst`` = 0.2 mm spacing (:mod:`.thinning`);
 prediction points whose voxel ``round((X - BB_min) / Res + 1)`` (1-based, MATLAB rounding) is
 inside the grid and set in ``ObsMask`` are "in mask"; distances in both directions are capped at
-``MaxDist`` = 20 mm; accuracy = mean of the in-mask prediction distances below 20 mm, completeness =
+``MaxDist`` = 20 mm (points outside MaxDistCP.m's search blocks around ``BB`` get the cap);
+accuracy = mean of the in-mask prediction distances below 20 mm, completeness =
 mean of the above-plane ground-truth distances below 20 mm, overall = their mean.
 """
 
@@ -125,6 +126,17 @@ def above_plane(points: np.ndarray, plane: np.ndarray) -> np.ndarray:
     return points @ plane[:3] + plane[3] > 0
 
 
+def in_search_blocks(points: np.ndarray, bb: np.ndarray, max_dist: float) -> np.ndarray:
+    """[N] bool: the point lies in one of the MaxDist-sized blocks that MaxDistCP.m searches.
+
+    The MATLAB routine tiles space from ``BB_min`` with cubes of side ``MaxDist``, ``floor((BB_max -
+    BB_min) / MaxDist) + 1`` per axis, and leaves points outside them at distance ``MaxDist``, i.e.
+    ignored. Inside the tiling its block-wise search is exact for distances below ``MaxDist``.
+    """
+    hi = bb[0] + (np.floor((bb[1] - bb[0]) / max_dist) + 1) * max_dist
+    return np.all((points >= bb[0]) & (points < hi), axis=1)
+
+
 def dtu_paths(dtu_root: str | Path, scan: int) -> dict[str, Path]:
     """The official file locations of one scan under the evaluation-data folder."""
     root = Path(dtu_root)
@@ -152,6 +164,8 @@ def evaluate_dtu_points(
     in_mask = in_obs_mask(thinned, obs)
     d_data = nearest_distances(thinned, gt, max_dist=max_dist)
     d_stl = nearest_distances(gt, thinned, max_dist=max_dist)
+    d_data[~in_search_blocks(thinned, obs.bb, max_dist)] = max_dist
+    d_stl[~in_search_blocks(gt, obs.bb, max_dist)] = max_dist
     acc = d_data[in_mask & (d_data < max_dist)]
     comp = d_stl[above_plane(gt, plane) & (d_stl < max_dist)]
     if len(acc) == 0:

@@ -10,7 +10,8 @@ permutation from a seeded generator (``seed``), so a result can always be repeat
 from __future__ import annotations
 
 import numpy as np
-from scipy.spatial import cKDTree
+
+from mvsformerpp.evaluation.distances import build_tree
 
 #: Points whose neighbourhoods are searched per KD-tree call (bounds memory on dense clouds).
 THIN_CHUNK = 1 << 17
@@ -31,7 +32,7 @@ def thin_points(points: np.ndarray, min_dist: float, seed: int | None = None, ch
         keep[:] = True
         return keep
     order = np.arange(n) if seed is None else np.random.default_rng(seed).permutation(n)
-    tree = cKDTree(points)
+    tree = build_tree(points)
     removed = bytearray(n)  # byte flags: cheaper than numpy scalar indexing inside the Python loop
     for start in range(0, n, chunk):
         ids = order[start:start + chunk]
