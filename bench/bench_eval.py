@@ -13,13 +13,17 @@ from __future__ import annotations
 import argparse
 import os
 import platform
+import tempfile
 import time
+from pathlib import Path
 
 import numpy as np
+import scipy.io
 
-from mvsformerpp.evaluation import ObsMask, evaluate_clouds, evaluate_tnt_points, thin_points
+from mvsformerpp.evaluation import ObsMask, evaluate_clouds, evaluate_dtu_scan, evaluate_tnt_points, thin_points
 from mvsformerpp.evaluation.distances import nearest_distances
-from mvsformerpp.evaluation.dtu import above_plane, in_obs_mask
+from mvsformerpp.evaluation.dtu import above_plane, in_obs_mask, in_search_blocks
+from mvsformerpp.io.ply import write_ply
 
 
 def surface(xy: np.ndarray) -> np.ndarray:
@@ -62,18 +66,31 @@ def main() -> None:
     in_mask = timed("DTU: ObsMask lookup", rows, lambda: in_obs_mask(q, obs))
     d_data = timed("DTU: pred -> GT distances", rows, lambda: nearest_distances(q, gt, max_dist=20.0))
     d_stl = timed("DTU: GT -> pred distances", rows, lambda: nearest_distances(gt, q, max_dist=20.0))
+    d_data[~in_search_blocks(q, obs.bb, 20.0)] = 20.0
+    d_stl[~in_search_blocks(gt, obs.bb, 20.0)] = 20.0
     above = above_plane(gt, np.array([0, 0, 1.0, 100]))
     acc = d_data[in_mask & (d_data < 20)].mean()
     comp = d_stl[above & (d_stl < 20)].mean()
     dtu_total = sum(t for _, t in rows)
     rows.append(("DTU protocol total", dtu_total))
+    with tempfile.TemporaryDirectory() as tmp:  # the same scan as official-format files, end to end
+        root = Path(tmp)
+        (root / "ObsMask").mkdir()
+        (root / "Points" / "stl").mkdir(parents=True)
+        scipy.io.savemat(root / "ObsMask" / "ObsMask1_10.mat", {"ObsMask": obs.mask, "BB": obs.bb, "Res": obs.res})
+        scipy.io.savemat(root / "ObsMask" / "Plane1.mat", {"P": np.array([[0.0], [0], [1], [100]])})
+        write_ply(root / "Points" / "stl" / "stl001_total.ply", gt)
+        write_ply(root / "pred.ply", pred)
+        res = timed("DTU scan from files (read + protocol)", rows,
+                    lambda: evaluate_dtu_scan(root / "pred.ply", 1, root))
     m = timed("generic cloud metrics (P/R/F, acc/comp)", rows, lambda: evaluate_clouds(pred, gt, 0.5))
     r = timed("TnT protocol (voxel 0.25, P/R/F at 0.5)", rows, lambda: evaluate_tnt_points(pred, gt, 0.5))
 
     print(f"\n| {'stage':<42} | {'seconds':>8} |\n|{'-' * 44}|{'-' * 10}|")
     for label, t in rows:
         print(f"| {label:<42} | {t:8.2f} |")
-    print(f"\nDTU: kept {keep.sum():,} of {len(pred):,} after thinning; acc {acc:.4f} mm, comp {comp:.4f} mm")
+    print(f"\nDTU: kept {keep.sum():,} of {len(pred):,} after thinning; acc {acc:.4f} mm, comp {comp:.4f} mm; "
+          f"from files: acc {res.accuracy:.4f} comp {res.completeness:.4f} (float32 PLY coordinates)")
     print(f"generic @0.5 mm: P {m.precision:.4f} R {m.recall:.4f} F {m.f_score:.4f}; "
           f"TnT @0.5 mm: F {r.metrics.f_score:.4f} ({len(r.pred_points):,} / {len(r.gt_points):,} voxels)")
 
