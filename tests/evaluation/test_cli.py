@@ -53,10 +53,13 @@ def test_dtu_folder_and_depth_and_eth3d(tmp_path, capsys):
     (tmp_path / "preds").mkdir()
     write_ply(tmp_path / "preds" / "mvsnet001_l3.ply", gt + [0, 0, 0.5])
     rc = main(["evaluate", "dtu", str(tmp_path / "preds"), "--dtu-root", str(root), "--scans", "1",
-               "--json", str(tmp_path / "dtu.json")])
+               "--json", str(tmp_path / "dtu.json"), "--error-ply-dir", str(tmp_path / "err")])
     assert rc == 0
     res = json.loads((tmp_path / "dtu.json").read_text())
     assert abs(res["mean"]["overall"] - 0.5) < 1e-6
+    acc_cloud = read_ply(tmp_path / "err" / "scan1_accuracy.ply")
+    assert len(acc_cloud["x"]) == res["scans"][0]["num_pred_used"]
+    np.testing.assert_allclose(acc_cloud["error"], 0.5, rtol=1e-6)
     rc = main(["evaluate", "dtu", str(tmp_path / "preds"), "--dtu-root", str(root), "--scans", "2"])
     assert rc == 2 and "scan 2 has no ground truth" in capsys.readouterr().err
 

@@ -91,7 +91,7 @@ def _cmd_dtu(args) -> int:
         raise InputError("the prediction must be a PLY file or a folder of per-scan PLY files", pred)
     results = []
     for scan, ply in jobs:
-        r = evaluate_dtu_scan(ply, scan, args.dtu_root, seed=args.seed)
+        r = evaluate_dtu_scan(ply, scan, args.dtu_root, seed=args.seed, error_ply_dir=args.error_ply_dir)
         print(f"scan {scan}: acc {r.accuracy:.4f} comp {r.completeness:.4f} overall {r.overall:.4f} mm", flush=True)
         results.append(r)
     print(format_dtu_table(results))
@@ -180,6 +180,8 @@ def register(subparsers) -> None:
                    help="visit points in a seeded random order when thinning (default: file order)")
     p.add_argument("--json", metavar="OUT.json", help="write per-scan results and the mean")
     p.add_argument("--plot", metavar="OUT.png", help="per-scan bar chart (needs [plot])")
+    p.add_argument("--error-ply-dir", metavar="DIR",
+                   help="write scan{N}_accuracy.ply / scan{N}_completeness.ply coloured by error (0-2 mm)")
     p.set_defaults(func=_cmd_dtu)
 
     p = sub.add_parser("tnt", help="Tanks-and-Temples precision/recall/F-score")

@@ -147,6 +147,59 @@ def dtu_paths(dtu_root: str | Path, scan: int) -> dict[str, Path]:
     }
 
 
+@dataclass(frozen=True)
+class DTUDistances:
+    """The per-point evidence behind a :class:`DTUResult` (for error-coloured clouds)."""
+
+    pred: np.ndarray  #: [N,3] thinned prediction
+    pred_dist: np.ndarray  #: [N] capped distance to the ground truth (``Ddata``)
+    pred_used: np.ndarray  #: [N] bool: in the mask and below MaxDist
+    gt: np.ndarray  #: [M,3] ground truth
+    gt_dist: np.ndarray  #: [M] capped distance to the thinned prediction (``Dstl``)
+    gt_used: np.ndarray  #: [M] bool: above the plane and below MaxDist
+
+
+def dtu_distances(
+    pred: np.ndarray,
+    gt: np.ndarray,
+    obs: ObsMask,
+    plane: np.ndarray,
+    dst: float = DTU_DST,
+    max_dist: float = DTU_MAX_DIST,
+    seed: int | None = None,
+) -> DTUDistances:
+    """Thinning, mask, plane and both capped distance passes (BaseEvalMain_web.m + PointCompareMain.m)."""
+    pred = check_points(pred, "prediction")
+    gt = check_points(gt, "ground truth")
+    thinned = pred[thin_points(pred, dst, seed=seed)]
+    d_data = nearest_distances(thinned, gt, max_dist=max_dist)
+    d_stl = nearest_distances(gt, thinned, max_dist=max_dist)
+    d_data[~in_search_blocks(thinned, obs.bb, max_dist)] = max_dist
+    d_stl[~in_search_blocks(gt, obs.bb, max_dist)] = max_dist
+    return DTUDistances(
+        pred=thinned, pred_dist=d_data, pred_used=in_obs_mask(thinned, obs) & (d_data < max_dist),
+        gt=gt, gt_dist=d_stl, gt_used=above_plane(gt, plane) & (d_stl < max_dist),
+    )
+
+
+def summarize_dtu(dist: DTUDistances, scan: int = 0, num_pred: int | None = None) -> DTUResult:
+    """Means and medians of the used distances (ComputeStat_web.m)."""
+    acc, comp = dist.pred_dist[dist.pred_used], dist.gt_dist[dist.gt_used]
+    if len(acc) == 0:
+        raise InputError(f"scan {scan}: no prediction point lies inside the observation mask within "
+                         f"{DTU_MAX_DIST:g} mm of the ground truth; is the cloud in DTU world coordinates (mm)?")
+    if len(comp) == 0:
+        raise InputError(f"scan {scan}: no ground-truth point lies above the plane within {DTU_MAX_DIST:g} mm "
+                         "of the prediction; is the cloud in DTU world coordinates (mm)?")
+    a, c = float(acc.mean()), float(comp.mean())
+    return DTUResult(
+        scan=scan, accuracy=a, completeness=c, overall=(a + c) / 2,
+        accuracy_median=float(np.median(acc)), completeness_median=float(np.median(comp)),
+        num_pred=len(dist.pred) if num_pred is None else num_pred, num_pred_thinned=len(dist.pred),
+        num_pred_used=len(acc), num_gt=len(dist.gt), num_gt_used=len(comp),
+    )
+
+
 def evaluate_dtu_points(
     pred: np.ndarray,
     gt: np.ndarray,
@@ -158,29 +211,20 @@ def evaluate_dtu_points(
     seed: int | None = None,
 ) -> DTUResult:
     """The DTU protocol on arrays: pred [N,3] and gt [M,3] in mm (see the module docstring)."""
-    pred = check_points(pred, "prediction")
-    gt = check_points(gt, "ground truth")
-    thinned = pred[thin_points(pred, dst, seed=seed)]
-    in_mask = in_obs_mask(thinned, obs)
-    d_data = nearest_distances(thinned, gt, max_dist=max_dist)
-    d_stl = nearest_distances(gt, thinned, max_dist=max_dist)
-    d_data[~in_search_blocks(thinned, obs.bb, max_dist)] = max_dist
-    d_stl[~in_search_blocks(gt, obs.bb, max_dist)] = max_dist
-    acc = d_data[in_mask & (d_data < max_dist)]
-    comp = d_stl[above_plane(gt, plane) & (d_stl < max_dist)]
-    if len(acc) == 0:
-        raise InputError(f"scan {scan}: no prediction point lies inside the observation mask within {max_dist} mm "
-                         "of the ground truth; is the cloud in DTU world coordinates (mm)?")
-    if len(comp) == 0:
-        raise InputError(f"scan {scan}: no ground-truth point lies above the plane within {max_dist} mm "
-                         "of the prediction; is the cloud in DTU world coordinates (mm)?")
-    a, c = float(acc.mean()), float(comp.mean())
-    return DTUResult(
-        scan=scan, accuracy=a, completeness=c, overall=(a + c) / 2,
-        accuracy_median=float(np.median(acc)), completeness_median=float(np.median(comp)),
-        num_pred=len(pred), num_pred_thinned=len(thinned), num_pred_used=len(acc),
-        num_gt=len(gt), num_gt_used=len(comp),
-    )
+    return summarize_dtu(dtu_distances(pred, gt, obs, plane, dst, max_dist, seed), scan, num_pred=len(pred))
+
+
+def write_dtu_error_clouds(out_dir: str | Path, scan: int, dist: DTUDistances, scale: float = 2.0) -> list[Path]:
+    """Write ``scan{N}_accuracy.ply`` (used prediction points) and ``scan{N}_completeness.ply`` (used
+    ground-truth points), coloured blue (0 mm) to red (>= ``scale`` mm), with the distance as ``error``."""
+    from mvsformerpp.evaluation.visualize import write_error_ply
+
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    paths = [out / f"scan{scan}_accuracy.ply", out / f"scan{scan}_completeness.ply"]
+    write_error_ply(paths[0], dist.pred[dist.pred_used], dist.pred_dist[dist.pred_used], scale)
+    write_error_ply(paths[1], dist.gt[dist.gt_used], dist.gt_dist[dist.gt_used], scale)
+    return paths
 
 
 def evaluate_dtu_scan(
@@ -190,8 +234,12 @@ def evaluate_dtu_scan(
     dst: float = DTU_DST,
     max_dist: float = DTU_MAX_DIST,
     seed: int | None = None,
+    error_ply_dir: str | Path | None = None,
 ) -> DTUResult:
-    """Evaluate one fused cloud (PLY, DTU world coordinates in mm) with the official files of ``scan``."""
+    """Evaluate one fused cloud (PLY, DTU world coordinates in mm) with the official files of ``scan``.
+
+    error_ply_dir: also write error-coloured clouds there (:func:`write_dtu_error_clouds`).
+    """
     paths = dtu_paths(dtu_root, scan)
     missing = [str(p) for p in paths.values() if not p.is_file()]
     if missing:
@@ -201,7 +249,11 @@ def evaluate_dtu_scan(
     plane = load_plane(paths["plane"])
     gt = load_cloud(paths["stl"], "ground truth")
     pred = load_cloud(pred_ply, "prediction")
-    return evaluate_dtu_points(pred, gt, obs, plane, scan=scan, dst=dst, max_dist=max_dist, seed=seed)
+    dist = dtu_distances(pred, gt, obs, plane, dst=dst, max_dist=max_dist, seed=seed)
+    result = summarize_dtu(dist, scan, num_pred=len(pred))
+    if error_ply_dir is not None:
+        write_dtu_error_clouds(error_ply_dir, scan, dist)
+    return result
 
 
 def dtu_mean(results: list[DTUResult]) -> dict[str, float]:
