@@ -91,3 +91,19 @@ def test_files_and_bad_input(tmp_path):
         load_cloud(tmp_path / "noxyz.ply")
     with pytest.raises(InputError, match=r"\[N,3\]"):
         evaluate_clouds(np.zeros((4, 2)), gt, 0.1)
+
+
+def test_gaussian_noise_matches_half_normal_statistics():
+    """Noise along the normal only: each distance is exactly |noise|; the means follow the half-normal law."""
+    from scipy.stats import norm
+
+    sigma, tau, step = 0.002, 0.003, 0.01  # noise << grid step, so the nearest GT point is straight below
+    gt = grid(100, step)
+    noise = np.random.default_rng(7).normal(scale=sigma, size=len(gt))
+    pred = gt + np.stack([np.zeros_like(noise), np.zeros_like(noise), noise], axis=1)
+    m = evaluate_clouds(pred, gt, tau)
+    assert m.accuracy == pytest.approx(np.abs(noise).mean(), rel=1e-9)
+    assert m.precision == pytest.approx(np.mean(np.abs(noise) < tau))
+    assert m.accuracy == pytest.approx(sigma * np.sqrt(2 / np.pi), rel=0.03)  # E|n| of N(0, sigma^2)
+    assert m.precision == pytest.approx(2 * norm.cdf(tau / sigma) - 1, abs=0.02)
+    assert m.recall == m.precision  # the same pairs, seen from the other side

@@ -75,5 +75,8 @@ def test_bad_inputs(tmp_path):
     write_pfm(tmp_path / "pred" / "a.pfm", np.ones((2, 4), np.float32))
     with pytest.raises(InputError, match="ground-truth resolution"):
         evaluate_depth_dirs(tmp_path / "pred", tmp_path / "gt")
+    write_pfm(tmp_path / "pred" / "a.pfm", np.ones((4, 4, 3), np.float32))
+    with pytest.raises(InputError, match="one channel"):
+        evaluate_depth_dirs(tmp_path / "pred", tmp_path / "gt")
     with pytest.raises(InputError, match="does not exist"):
         evaluate_depth_dirs(tmp_path / "nope", tmp_path / "gt")

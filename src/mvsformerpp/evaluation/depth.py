@@ -66,6 +66,8 @@ def depth_sums(pred: np.ndarray, gt: np.ndarray, mask: np.ndarray | None = None,
                thresholds: tuple[float, ...] = DTU_DEPTH_THRESHOLDS, interval: float = 1.0,
                inlier_ratio: float = 1.03) -> DepthSums:
     """Sums for one view: pred, gt [H,W]; mask [H,W] bool (True = evaluate); thresholds in units of ``interval``."""
+    if pred.ndim != 2 or gt.ndim != 2:
+        raise InputError(f"depth maps must have one channel, got shapes {pred.shape} (prediction), {gt.shape}")
     if pred.shape != gt.shape:
         raise InputError(f"predicted depth is {pred.shape[1]}x{pred.shape[0]} but ground truth is "
                          f"{gt.shape[1]}x{gt.shape[0]}; evaluate at the ground-truth resolution")
