@@ -87,3 +87,14 @@ def test_tnt_and_submission(tmp_path, capsys):
     rc = main(["evaluate", "tnt-submit", str(tmp_path / "sub"), "Barn", str(tmp_path / "pred.ply"),
                str(tmp_path / "Barn.log")])
     assert rc == 0 and (tmp_path / "sub" / "Barn.log").is_file() and (tmp_path / "sub" / "Barn.ply").is_file()
+
+
+def test_cloud_plot_option(tmp_path):
+    import pytest
+
+    pytest.importorskip("matplotlib")
+    write_ply(tmp_path / "gt.ply", plane())
+    write_ply(tmp_path / "pred.ply", plane(z=0.002))
+    rc = main(["evaluate", "cloud", str(tmp_path / "pred.ply"), str(tmp_path / "gt.ply"), "--threshold", "0.005",
+               "--plot", str(tmp_path / "curve.png")])
+    assert rc == 0 and (tmp_path / "curve.png").read_bytes()[:4] == b"\x89PNG"
