@@ -108,7 +108,7 @@ def _cmd_dtu(args) -> int:
 def _cmd_tnt(args) -> int:
     from mvsformerpp.evaluation.tnt import evaluate_tnt
 
-    res = evaluate_tnt(args.pred, args.gt, args.scene, args.threshold, args.crop, args.alignment)
+    res = evaluate_tnt(args.pred, args.gt, args.scene, args.threshold, args.crop, args.alignment, args.refine)
     _print_cloud(res.metrics, "m")
     _write_json(args.json, res.metrics.to_dict())
     _extras(res.distances, args, res.metrics.threshold, res.pred_points, res.gt_points)
@@ -190,6 +190,7 @@ def register(subparsers) -> None:
     p.add_argument("--threshold", type=float, help="threshold in metres (overrides the scene's)")
     p.add_argument("--crop", help="crop volume JSON ({scene}.json)")
     p.add_argument("--alignment", help="4x4 transform text file applied to the prediction ({scene}_trans.txt)")
+    p.add_argument("--refine", action="store_true", help="refine the alignment with rigid ICP before scoring")
     p.add_argument("--json", metavar="OUT.json", help="write the metrics")
     _view_args(p)
     p.set_defaults(func=_cmd_tnt)

@@ -28,6 +28,7 @@ from mvsformerpp.evaluation.dtu import (
     write_dtu_error_clouds,
 )
 from mvsformerpp.evaluation.eth3d import ETH3D_TOLERANCES, ETH3DRow, evaluate_eth3d, evaluate_eth3d_points
+from mvsformerpp.evaluation.icp import icp_refine
 from mvsformerpp.evaluation.thinning import thin_points
 from mvsformerpp.evaluation.tnt import (
     TNT_THRESHOLDS,
@@ -46,7 +47,8 @@ __all__ = [
     "DTUDistances", "DTUResult", "DepthReport", "ETH3DRow", "ObsMask", "TnTResult", "check_points", "cloud_distances",
     "depth_sums", "dtu_distances", "dtu_mean", "error_colors", "evaluate_cloud_files", "evaluate_clouds",
     "evaluate_depth_dirs", "evaluate_dtu_points", "evaluate_dtu_scan", "evaluate_eth3d", "evaluate_eth3d_points",
-    "evaluate_tnt", "evaluate_tnt_points", "format_depth_table", "format_dtu_table", "load_cloud", "load_crop_volume",
+    "evaluate_tnt", "evaluate_tnt_points", "format_depth_table", "format_dtu_table", "icp_refine", "load_cloud",
+    "load_crop_volume",
     "load_obs_mask", "load_plane", "nearest_distances", "package_tnt_submission", "plot_per_scan", "plot_pr_curves",
     "read_log", "summarize_dtu", "thin_points", "voxel_downsample", "write_dtu_error_clouds", "write_error_ply",
     "write_log",

@@ -3,8 +3,9 @@
 Mirrors the official toolbox (``python_toolbox/evaluation``, Knapitsch et al. 2017) without Open3D:
 
 1. the reconstruction is mapped into the ground-truth frame by the given 4x4 ``alignment``
-   (the toolbox's ``{scene}_trans.txt`` composed with its registration result; this package applies
-   the matrix it is given and does not run the toolbox's trajectory registration / ICP refinement);
+   (the toolbox's ``{scene}_trans.txt``); optionally refined by rigid ICP (``refine``, :mod:`.icp`;
+   the toolbox's camera-trajectory registration is not reproduced: the reconstruction must use the
+   benchmark's camera poses, as submissions do);
 2. both clouds are cropped by the scene's crop volume (``{scene}.json``, an Open3D
    ``SelectionPolygonVolume``: a polygon in the plane orthogonal to ``orthogonal_axis`` and an
    interval ``[axis_min, axis_max]`` along it);
@@ -24,6 +25,7 @@ import numpy as np
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.evaluation.cloud import CloudDistances, CloudMetrics, cloud_distances
 from mvsformerpp.evaluation.distances import check_points, load_cloud
+from mvsformerpp.evaluation.icp import icp_refine
 
 #: The official per-scene thresholds (metres), training and intermediate/advanced scenes.
 TNT_THRESHOLDS: dict[str, float] = {
@@ -131,12 +133,24 @@ def evaluate_tnt_points(
     threshold: float,
     crop: CropVolume | None = None,
     alignment: np.ndarray | None = None,
+    refine: bool = False,
 ) -> TnTResult:
-    """The toolbox protocol on arrays (see the module docstring); voxel size = threshold / 2."""
+    """The toolbox protocol on arrays (see the module docstring); voxel size = threshold / 2.
+
+    refine: before scoring, refine the alignment with rigid ICP (:func:`.icp.icp_refine`) at
+    correspondence distances 10, 4 and 1.5 thresholds, on the cropped clouds downsampled to the
+    threshold; the prediction must already be roughly aligned.
+    """
     pred = check_points(pred, "prediction")
     gt = check_points(gt, "ground truth")
     if alignment is not None:
         pred = apply_transform(pred, np.asarray(alignment, dtype=np.float64))
+    if refine:
+        src, dst = (pred, gt) if crop is None else (pred[crop.contains(pred)], gt[crop.contains(gt)])
+        if len(src) >= 3 and len(dst) >= 3:
+            T = icp_refine(voxel_downsample(src, threshold), voxel_downsample(dst, threshold),
+                           max_corr=(10 * threshold, 4 * threshold, 1.5 * threshold))
+            pred = apply_transform(pred, T)
     if crop is not None:
         pred, gt = pred[crop.contains(pred)], gt[crop.contains(gt)]
         if len(pred) == 0:
@@ -167,10 +181,11 @@ def evaluate_tnt(
     threshold: float | None = None,
     crop_json: str | Path | None = None,
     alignment_txt: str | Path | None = None,
+    refine: bool = False,
 ) -> TnTResult:
     """Evaluate a reconstruction PLY against a Tanks-and-Temples ground-truth PLY (metres)."""
     tau = scene_threshold(scene, threshold)
     crop = load_crop_volume(crop_json) if crop_json is not None else None
     alignment = load_alignment(alignment_txt) if alignment_txt is not None else None
     return evaluate_tnt_points(load_cloud(pred_ply, "prediction"), load_cloud(gt_ply, "ground truth"), tau,
-                               crop=crop, alignment=alignment)
+                               crop=crop, alignment=alignment, refine=refine)
