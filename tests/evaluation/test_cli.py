@@ -60,8 +60,14 @@ def test_dtu_folder_and_depth_and_eth3d(tmp_path, capsys):
     acc_cloud = read_ply(tmp_path / "err" / "scan1_accuracy.ply")
     assert len(acc_cloud["x"]) == res["scans"][0]["num_pred_used"]
     np.testing.assert_allclose(acc_cloud["error"], 0.5, rtol=1e-6)
+    write_ply(tmp_path / "preds" / "mvsnet002_l3.ply", gt)
     rc = main(["evaluate", "dtu", str(tmp_path / "preds"), "--dtu-root", str(root), "--scans", "2"])
     assert rc == 2 and "scan 2 has no ground truth" in capsys.readouterr().err
+    rc = main(["evaluate", "dtu", str(tmp_path / "preds"), "--dtu-root", str(root), "--scans", "1", "3", "4"])
+    err = capsys.readouterr().err
+    assert rc == 2 and "no prediction for 2 scan(s): mvsnet003_l3.ply, mvsnet004_l3.ply" in err
+    rc = main(["evaluate", "dtu", str(tmp_path / "preds"), "--dtu-root", str(root), "--pattern", "{n}.ply"])
+    assert rc == 2 and "bad --pattern" in capsys.readouterr().err
 
     (tmp_path / "p").mkdir()
     (tmp_path / "g").mkdir()

@@ -86,9 +86,17 @@ def _cmd_dtu(args) -> int:
             raise InputError("a single PLY file needs exactly one --scans number", pred)
         jobs = [(scans[0], pred)]
     elif pred.is_dir():
-        jobs = [(s, pred / args.pattern.format(scan=s)) for s in scans]
+        try:
+            jobs = [(s, pred / args.pattern.format(scan=s)) for s in scans]
+        except (KeyError, IndexError, ValueError) as e:
+            raise InputError(f"bad --pattern {args.pattern!r}: use {{scan}} for the scan number, "
+                             "e.g. 'mvsnet{scan:03d}_l3.ply'") from e
     else:
         raise InputError("the prediction must be a PLY file or a folder of per-scan PLY files", pred)
+    missing = [str(ply.name) for _, ply in jobs if not ply.is_file()]
+    if missing:  # say so before spending minutes on the scans that are there
+        raise InputError(f"no prediction for {len(missing)} scan(s): {', '.join(missing)}; pass --scans or "
+                         "--pattern", pred)
     results = []
     for scan, ply in jobs:
         r = evaluate_dtu_scan(ply, scan, args.dtu_root, seed=args.seed, error_ply_dir=args.error_ply_dir)
@@ -175,7 +183,8 @@ def register(subparsers) -> None:
     p.add_argument("pred", help="a fused PLY (with one --scans) or a folder of per-scan PLYs")
     p.add_argument("--dtu-root", required=True, help="DTU evaluation data folder holding ObsMask/ and Points/stl/")
     p.add_argument("--scans", type=int, nargs="+", help="scan numbers (default: the 22 test scans)")
-    p.add_argument("--pattern", default="mvsnet{scan:03d}_l3.ply", help="per-scan file name in a folder")
+    p.add_argument("--pattern", default="mvsnet{scan:03d}_l3.ply",
+                   help="per-scan file name in a folder (default: mvsnet{scan:03d}_l3.ply)")
     p.add_argument("--seed", type=int, default=None,
                    help="visit points in a seeded random order when thinning (default: file order)")
     p.add_argument("--json", metavar="OUT.json", help="write per-scan results and the mean")
