@@ -104,3 +104,42 @@ def test_cloud_plot_option(tmp_path):
     rc = main(["evaluate", "cloud", str(tmp_path / "pred.ply"), str(tmp_path / "gt.ply"), "--threshold", "0.005",
                "--plot", str(tmp_path / "curve.png")])
     assert rc == 0 and (tmp_path / "curve.png").read_bytes()[:4] == b"\x89PNG"
+
+
+def test_alias_flags_and_bad_submission_items(tmp_path, capsys):
+    write_ply(tmp_path / "gt.ply", plane())
+    write_ply(tmp_path / "pred.ply", plane(z=0.001))
+    np.savetxt(tmp_path / "T.txt", np.eye(4))
+    rc = main(["evaluate", "tnt", str(tmp_path / "pred.ply"), str(tmp_path / "gt.ply"), "--threshold", "0.005",
+               "--transform", str(tmp_path / "T.txt"), "--error-cloud", str(tmp_path / "e.ply")])
+    assert rc == 0 and (tmp_path / "e_precision.ply").is_file()
+    rc = main(["evaluate", "tnt-package", str(tmp_path / "sub"), "Barn", str(tmp_path / "pred.ply")])
+    assert rc == 2 and "triples" in capsys.readouterr().err
+
+
+def test_package_from_reconstruct_folder(tmp_path):
+    import pytest
+
+    mvsnet = pytest.importorskip("mvsformerpp.io.mvsnet")
+    from mvsformerpp.evaluation.tnt_submission import scene_poses
+
+    rec = tmp_path / "rec"
+    (rec / "cams").mkdir(parents=True)
+    (rec / "images").mkdir()
+    from PIL import Image
+
+    for i in range(2):
+        Image.new("RGB", (8, 6)).save(rec / "images" / f"{i:08d}.jpg")
+        ext = np.eye(4)
+        ext[:3, 3] = [i, 0.5, 2.0]
+        (rec / "cams" / f"{i:08d}_cam.txt").write_text(
+            "extrinsic\n" + "\n".join(" ".join(map(str, r)) for r in ext)
+            + "\n\nintrinsic\n4 0 4\n0 4 3\n0 0 1\n\n1 0.1 64 7.4\n")
+    (rec / "pair.txt").write_text("2\n0\n1 1 1.0\n1\n1 0 1.0\n")
+    write_ply(rec / "fused.ply", plane())
+    assert main(["evaluate", "tnt-package", str(tmp_path / "sub"), f"Barn={rec}"]) == 0
+    scene = mvsnet.load_mvsnet_scene(rec)
+    from mvsformerpp.evaluation import read_log
+
+    np.testing.assert_allclose(read_log(tmp_path / "sub" / "Barn.log"), scene_poses(scene), atol=1e-8)
+    assert read_log(tmp_path / "sub" / "Barn.log")[1][0, 3] == -1.0  # camera centre = -R^T t

@@ -127,9 +127,19 @@ def _cmd_tnt_submit(args) -> int:
     from mvsformerpp.evaluation.tnt_submission import package_tnt_submission, read_log
 
     items = args.items
-    if len(items) % 3:
-        raise InputError("give triples: SCENE PLY LOG [SCENE PLY LOG ...]")
-    entries = {items[i]: (items[i + 1], read_log(items[i + 2])) for i in range(0, len(items), 3)}
+    if all("=" in it for it in items):  # SCENE=RECONSTRUCT_DIR: the folder `reconstruct` writes
+        try:
+            from mvsformerpp.io.mvsnet import load_mvsnet_scene
+        except ImportError as e:
+            raise InputError("SCENE=DIR needs the MVSNet scene reader; give SCENE PLY LOG triples instead") from e
+        entries = {}
+        for it in items:
+            name, folder = it.split("=", 1)
+            entries[name] = (Path(folder) / "fused.ply", load_mvsnet_scene(folder))
+    elif len(items) % 3 == 0:
+        entries = {items[i]: (items[i + 1], read_log(items[i + 2])) for i in range(0, len(items), 3)}
+    else:
+        raise InputError("give SCENE PLY LOG triples or SCENE=RECONSTRUCT_DIR entries")
     out = package_tnt_submission(args.out_dir, entries, overwrite=args.overwrite)
     print(f"packaged {len(entries)} scene(s) in {out}")
     return 0
@@ -150,7 +160,7 @@ def _cloud_args(p: argparse.ArgumentParser) -> None:
 
 
 def _view_args(p: argparse.ArgumentParser) -> None:
-    p.add_argument("--error-ply", metavar="OUT.ply",
+    p.add_argument("--error-ply", "--error-cloud", dest="error_ply", metavar="OUT.ply",
                    help="also write OUT_precision.ply / OUT_recall.ply coloured by error")
     p.add_argument("--plot", metavar="OUT.png", help="precision/recall/F-score vs threshold plot (needs [plot])")
 
@@ -189,7 +199,7 @@ def register(subparsers) -> None:
                    help="visit points in a seeded random order when thinning (default: file order)")
     p.add_argument("--json", metavar="OUT.json", help="write per-scan results and the mean")
     p.add_argument("--plot", metavar="OUT.png", help="per-scan bar chart (needs [plot])")
-    p.add_argument("--error-ply-dir", metavar="DIR",
+    p.add_argument("--error-ply-dir", "--error-clouds", dest="error_ply_dir", metavar="DIR",
                    help="write scan{N}_accuracy.ply / scan{N}_completeness.ply coloured by error (0-2 mm)")
     p.set_defaults(func=_cmd_dtu)
 
@@ -198,15 +208,17 @@ def register(subparsers) -> None:
     p.add_argument("--scene", help="scene name, for its official threshold (e.g. Ignatius)")
     p.add_argument("--threshold", type=float, help="threshold in metres (overrides the scene's)")
     p.add_argument("--crop", help="crop volume JSON ({scene}.json)")
-    p.add_argument("--alignment", help="4x4 transform text file applied to the prediction ({scene}_trans.txt)")
+    p.add_argument("--alignment", "--transform", dest="alignment",
+                   help="4x4 transform text file applied to the prediction ({scene}_trans.txt)")
     p.add_argument("--refine", action="store_true", help="refine the alignment with rigid ICP before scoring")
     p.add_argument("--json", metavar="OUT.json", help="write the metrics")
     _view_args(p)
     p.set_defaults(func=_cmd_tnt)
 
-    p = sub.add_parser("tnt-submit", help="package a Tanks-and-Temples leaderboard folder")
+    p = sub.add_parser("tnt-submit", aliases=["tnt-package"], help="package a Tanks-and-Temples leaderboard folder")
     p.add_argument("out_dir", help="submission folder to write")
-    p.add_argument("items", nargs="+", metavar="SCENE PLY LOG", help="triples of scene name, reconstruction, .log")
+    p.add_argument("items", nargs="+", metavar="ITEM",
+                   help="triples SCENE PLY LOG, or SCENE=RECONSTRUCT_DIR (its fused.ply and MVSNet cams/)")
     p.add_argument("--overwrite", action="store_true", help="replace scenes already packaged")
     p.set_defaults(func=_cmd_tnt_submit)
 
