@@ -1,5 +1,15 @@
-"""Point-cloud metrics: nearest-neighbour distances with KD-trees, precision/recall/F-score, accuracy and
-completeness, voxel downsampling, error-coloured clouds."""
+"""Generic point-cloud metrics: precision / recall / F-score at a threshold, accuracy / completeness.
+
+Definitions (Knapitsch et al., "Tanks and Temples", SIGGRAPH 2017, Sec. 4; the same pair of
+directed distances underlies the DTU and ETH3D protocols):
+
+- accuracy distances: for each predicted point, the distance to the nearest ground-truth point;
+- completeness distances: for each ground-truth point, the distance to the nearest predicted point;
+- precision(T) = share of predicted points with accuracy distance < T;
+- recall(T) = share of ground-truth points with completeness distance < T;
+- F(T) = 2 P R / (P + R) (0 when both are 0);
+- accuracy / completeness = mean of the respective distances (the DTU-style "mean distance").
+"""
 
 from __future__ import annotations
 
@@ -7,86 +17,82 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
-from scipy.spatial import cKDTree
 
-from mvsformerpp.errors import InputError
-from mvsformerpp.io.ply import ply_points, read_ply, write_ply
+from mvsformerpp.evaluation.distances import check_points, load_cloud, nearest_distances
 
 
-def load_points(path: str | Path) -> np.ndarray:
-    """[N,3] float64 points of a PLY file; a clear error for empty clouds or non-finite coordinates."""
-    pts = ply_points(read_ply(path), path)
-    if len(pts) == 0:
-        raise InputError("the point cloud is empty", path)
-    bad = ~np.isfinite(pts).all(axis=1)
-    if bad.any():
-        raise InputError(f"{int(bad.sum())} points have NaN or infinite coordinates; remove them first", path)
-    return pts
-
-
-def nearest_distances(query: np.ndarray, reference: np.ndarray, chunk: int = 1 << 20) -> np.ndarray:
-    """Distance from each query point to its nearest reference point (KD-tree, chunked, all cores)."""
-    if len(reference) == 0:
-        return np.full(len(query), np.inf)
-    tree = cKDTree(reference)
-    out = np.empty(len(query))
-    for s in range(0, len(query), chunk):
-        out[s:s + chunk] = tree.query(query[s:s + chunk], k=1, workers=-1)[0]
-    return out
-
-
-def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Mean of the points in each occupied voxel (as Open3D's voxel_down_sample), in voxel order."""
-    if voxel <= 0 or len(points) == 0:
-        return points
-    keys = np.floor((points - points.min(0)) / voxel).astype(np.int64)
-    _, inverse, counts = np.unique(keys, axis=0, return_inverse=True, return_counts=True)
-    sums = np.zeros((len(counts), 3))
-    np.add.at(sums, inverse.reshape(-1), points)
-    return sums / counts[:, None]
-
-
-@dataclass
+@dataclass(frozen=True)
 class CloudMetrics:
-    threshold: float
-    precision: float  # share of predicted points within threshold of the GT
-    recall: float  # share of GT points within threshold of the prediction
-    f_score: float
-    accuracy: float  # mean prediction -> GT distance
-    completeness: float  # mean GT -> prediction distance
-    num_pred: int
-    num_gt: int
+    """Metrics of one prediction against one ground truth at one threshold (same length unit)."""
 
-    def to_dict(self) -> dict:
+    threshold: float  #: distance under which a point counts as correct
+    precision: float  #: share of predicted points within ``threshold`` of the ground truth
+    recall: float  #: share of ground-truth points within ``threshold`` of the prediction
+    f_score: float  #: harmonic mean of precision and recall
+    accuracy: float  #: mean distance prediction -> ground truth
+    completeness: float  #: mean distance ground truth -> prediction
+    num_pred: int  #: points in the evaluated prediction
+    num_gt: int  #: points in the evaluated ground truth
+
+    def to_dict(self) -> dict[str, float | int]:
         return asdict(self)
 
 
+@dataclass(frozen=True)
+class CloudDistances:
+    """The two directed distance sets; every cloud metric is a statistic of these."""
+
+    pred_to_gt: np.ndarray  #: [N_pred] distance of each predicted point to the ground truth
+    gt_to_pred: np.ndarray  #: [N_gt] distance of each ground-truth point to the prediction
+
+    def metrics(self, threshold: float) -> CloudMetrics:
+        """Precision/recall/F-score at ``threshold`` and the mean distances."""
+        if not threshold > 0:
+            raise ValueError(f"threshold must be positive, got {threshold}")
+        p = float(np.mean(self.pred_to_gt < threshold))
+        r = float(np.mean(self.gt_to_pred < threshold))
+        return CloudMetrics(
+            threshold=float(threshold),
+            precision=p,
+            recall=r,
+            f_score=f_score(p, r),
+            accuracy=float(np.mean(self.pred_to_gt)),
+            completeness=float(np.mean(self.gt_to_pred)),
+            num_pred=len(self.pred_to_gt),
+            num_gt=len(self.gt_to_pred),
+        )
+
+    def curve(self, thresholds: np.ndarray) -> dict[str, np.ndarray]:
+        """Precision, recall and F-score for each of ``thresholds`` [T] (for plots). Sorted-search, O(T log N)."""
+        t = np.asarray(thresholds, dtype=np.float64)
+        a, c = np.sort(self.pred_to_gt), np.sort(self.gt_to_pred)
+        p = np.searchsorted(a, t, side="left") / len(a)
+        r = np.searchsorted(c, t, side="left") / len(c)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            f = np.where(p + r > 0, 2 * p * r / (p + r), 0.0)
+        return {"thresholds": t, "precision": p, "recall": r, "f_score": f}
+
+
 def f_score(precision: float, recall: float) -> float:
-    return 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+    """Harmonic mean of precision and recall; 0 when both are 0."""
+    return 0.0 if precision + recall <= 0 else 2.0 * precision * recall / (precision + recall)
 
 
-def cloud_metrics_from_distances(d_pred: np.ndarray, d_gt: np.ndarray, threshold: float) -> CloudMetrics:
-    p = float(np.mean(d_pred < threshold)) if len(d_pred) else 0.0
-    r = float(np.mean(d_gt < threshold)) if len(d_gt) else 0.0
-    return CloudMetrics(threshold, p, r, f_score(p, r), float(np.mean(d_pred)) if len(d_pred) else float("nan"),
-                        float(np.mean(d_gt)) if len(d_gt) else float("nan"), len(d_pred), len(d_gt))
+def cloud_distances(pred: np.ndarray, gt: np.ndarray, max_dist: float = np.inf) -> CloudDistances:
+    """Both directed nearest-neighbour distance sets between ``pred`` [N,3] and ``gt`` [M,3]."""
+    pred = check_points(pred, "prediction")
+    gt = check_points(gt, "ground truth")
+    return CloudDistances(
+        pred_to_gt=nearest_distances(pred, gt, max_dist=max_dist),
+        gt_to_pred=nearest_distances(gt, pred, max_dist=max_dist),
+    )
 
 
-def compare_clouds(pred: np.ndarray, gt: np.ndarray, threshold: float) -> tuple[CloudMetrics, np.ndarray, np.ndarray]:
-    """Metrics at ``threshold`` plus the two distance arrays (prediction->GT, GT->prediction)."""
-    if threshold <= 0:
-        raise InputError(f"the threshold must be positive, got {threshold}")
-    d_pred, d_gt = nearest_distances(pred, gt), nearest_distances(gt, pred)
-    return cloud_metrics_from_distances(d_pred, d_gt, threshold), d_pred, d_gt
+def evaluate_clouds(pred: np.ndarray, gt: np.ndarray, threshold: float) -> CloudMetrics:
+    """Precision, recall, F-score at ``threshold`` plus accuracy and completeness (mean distances)."""
+    return cloud_distances(pred, gt).metrics(threshold)
 
 
-def curves(d_pred: np.ndarray, d_gt: np.ndarray, thresholds) -> list[CloudMetrics]:
-    return [cloud_metrics_from_distances(d_pred, d_gt, t) for t in thresholds]
-
-
-def write_error_cloud(path: str | Path, points: np.ndarray, distances: np.ndarray, max_distance: float) -> None:
-    """PLY coloured by distance (blue = 0 ... red >= max_distance), with the distance as a property."""
-    from mvsformerpp.utils.colormap import turbo
-
-    x = np.clip(distances / max_distance, 0, 1)
-    write_ply(path, points.astype(np.float32), turbo(x), extra={"distance": distances.astype(np.float32)})
+def evaluate_cloud_files(pred_path: str | Path, gt_path: str | Path, threshold: float) -> CloudMetrics:
+    """:func:`evaluate_clouds` on two PLY files (same length unit as ``threshold``)."""
+    return evaluate_clouds(load_cloud(pred_path, "prediction"), load_cloud(gt_path, "ground truth"), threshold)
