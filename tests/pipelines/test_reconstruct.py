@@ -282,3 +282,16 @@ def test_cli_reconstruct_quiet_depth_only(scene4, tmp_path, capsys):
                "--fusion", "none", "--quiet"])
     assert rc == 0 and capsys.readouterr().out == ""
     assert len(list((out / "depth_est").glob("*.pfm"))) == 4 and not (out / "fused.ply").exists()
+
+
+@pytest.mark.parametrize("field, value", [("num_views", 1), ("max_size", 10), ("cache_mb", -1), ("memory_gb", 0.0)])
+def test_bad_settings_are_refused(field, value):
+    with pytest.raises(InputError):
+        dataclasses.replace(FAST, **{field: value})
+
+
+def test_unavailable_device_is_refused(scene4, tmp_path):
+    if __import__("torch").cuda.is_available():
+        pytest.skip("this machine has CUDA")
+    with pytest.raises(InputError, match="CUDA is not available"):
+        reconstruct(scene4, tmp_path / "out", dataclasses.replace(FAST, device="cuda"), quiet=True, model=fake_model())

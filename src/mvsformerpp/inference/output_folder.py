@@ -14,6 +14,7 @@ settings hash, so an interrupted run never leaves a view that looks done but is 
 from __future__ import annotations
 
 import errno
+import filecmp
 import hashlib
 import json
 import os
@@ -139,7 +140,7 @@ class OutputFolder:
     def link_image(self, i: int, src: Path) -> Path:
         """``images/NNNNNNNN<ext>``: a hard link to the input photo, or a copy across file systems."""
         dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"
-        if dst.is_file() and dst.stat().st_size == src.stat().st_size:
+        if dst.is_file() and (os.path.samefile(src, dst) or filecmp.cmp(src, dst, shallow=False)):
             return dst
         dst.parent.mkdir(parents=True, exist_ok=True)
         with disk_full_guard(dst):

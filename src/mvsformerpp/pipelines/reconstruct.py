@@ -65,6 +65,20 @@ class ReconstructConfig:
     seed: int = 0
     """Seed of the random initialisation when no checkpoint is given (keeps resumed runs consistent)."""
 
+    def __post_init__(self) -> None:
+        if self.num_views < 2:
+            raise InputError(f"--views must be at least 2 (the reference and one source view), got {self.num_views}")
+        if self.num_depth < 2:
+            raise InputError(f"num_depth must be at least 2, got {self.num_depth}")
+        if self.max_size is not None and self.max_size < 64:
+            raise InputError(f"--max-size must be at least 64 pixels, got {self.max_size}")
+        if self.memory_gb is not None and self.memory_gb <= 0:
+            raise InputError(f"--memory-gb must be positive, got {self.memory_gb}")
+        if self.cache_mb < 0:
+            raise InputError(f"--cache-mb must be >= 0, got {self.cache_mb}")
+        if len(self.temperatures) != 4:
+            raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
+
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""
         d = dataclasses.asdict(self)
@@ -215,7 +229,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     scene = prepare_scene(full, config)
     timings["input_s"] = time.perf_counter() - t0
 
-    device = torch.device(config.device)
+    device = _device(config.device)
     sizes = [(v.width, v.height) for v in scene.views]
     budget = config.memory_gb * 2**30 if config.memory_gb else 0.5 * available_memory_bytes(device)
     long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
@@ -283,6 +297,16 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     }
     folder.write_json("summary.json", summary)
     return summary
+
+
+def _device(name: str) -> torch.device:
+    try:
+        device = torch.device(name)
+    except RuntimeError as e:
+        raise InputError(f"--device {name!r} is not a torch device (use cpu, cuda or cuda:N)") from e
+    if device.type == "cuda" and not torch.cuda.is_available():
+        raise InputError(f"--device {name}: CUDA is not available on this machine; use --device cpu")
+    return device
 
 
 def _fusion_config(name: str):
