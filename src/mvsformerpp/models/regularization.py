@@ -8,6 +8,17 @@ from torch import nn
 from mvsformerpp.models.layers import ConvBnReLU3d, DeconvBnReLU3d
 
 
+def _unet_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
+    """The U-Net both regularisers share: three strided levels, additive skips, a logit head."""
+    c2 = net.conv2(net.conv1(x))
+    c4 = net.conv4(net.conv3(c2))
+    y = net.conv6(net.conv5(c4))
+    y = c4 + net.conv7(y)
+    y = c2 + net.conv9(y)
+    y = x + net.conv11(y)
+    return net.prob(y)
+
+
 class CostRegNet(nn.Module):
     """Stage 2: U-Net with stride 2 in depth and space; logits [B, 1, D, H, W]."""
 
@@ -25,13 +36,7 @@ class CostRegNet(nn.Module):
         self.prob = nn.Conv3d(base, 1, 3, padding=1, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        c2 = self.conv2(self.conv1(x))
-        c4 = self.conv4(self.conv3(c2))
-        y = self.conv6(self.conv5(c4))
-        y = c4 + self.conv7(y)
-        y = c2 + self.conv9(y)
-        y = x + self.conv11(y)
-        return self.prob(y)
+        return _unet_forward(self, x)
 
 
 def _deconv_hw(cin: int, cout: int) -> nn.Sequential:
@@ -62,13 +67,7 @@ class CostRegNet3D(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         if not self.training and x.device.type == "cpu":
             return _fast_forward_3d(self, x)  # the same function, faster on CPU (see below)
-        c2 = self.conv2(self.conv1(x))
-        c4 = self.conv4(self.conv3(c2))
-        y = self.conv6(self.conv5(c4))
-        y = c4 + self.conv7(y)
-        y = c2 + self.conv9(y)
-        y = x + self.conv11(y)
-        return self.prob(y)
+        return _unet_forward(self, x)
 
 
 # ------------------------------------------------------------------------------------------------
