@@ -48,9 +48,8 @@ def photos(tmp_path):
 
 def test_photo_folder_runs_sfm_once_and_reconstructs(photos, tmp_path, monkeypatch):
     pytest.importorskip("pycolmap")
-    needs_network()
     out = tmp_path / "out"
-    summary = reconstruct(photos, out, FAST, quiet=True)
+    summary = reconstruct(photos, out, FAST, quiet=True, model=fake_model())
     assert (out / "sfm" / "DONE").is_file() and (out / "sfm" / "dense" / "sparse").is_dir()
     assert summary["views"] == 3
     # Undistortion changes each photo's size slightly; depth maps follow the (undistorted) photo.
@@ -62,7 +61,9 @@ def test_photo_folder_runs_sfm_once_and_reconstructs(photos, tmp_path, monkeypat
     from mvsformerpp.pipelines import sfm
 
     monkeypatch.setattr(sfm, "import_pycolmap", lambda: pytest.fail("SfM ran again"))
-    reconstruct(photos, out, FAST, quiet=True)
+    again = fake_model()
+    reconstruct(photos, out, FAST, quiet=True, model=again)
+    assert again.forwards == 0
 
 
 def test_distorted_colmap_project_is_undistorted_first(photos, tmp_path):
