@@ -195,3 +195,18 @@ def test_outputs_have_documented_shapes_and_sizes_must_be_multiples_of_32():
     assert ((out["photometric_confidence"] > 0) & (out["photometric_confidence"] <= 1)).all()
     with pytest.raises(ValueError, match="multiple of 32"):
         model(imgs[..., :60, :], proj, dv)
+
+
+def test_bf16_autocast_keeps_fp32_islands_and_close_results():
+    """Under CPU bf16 autocast the cost volume, linear attention and depth head stay fp32 (the reference's
+    CUDA-only autocast guards do not do that on CPU): outputs are fp32 and close to the fp32 run."""
+    model = build_model("lite").eval()
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    with torch.no_grad():
+        ref = model(imgs, proj, dv)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = model(imgs, proj, dv)
+    assert out["depth"].dtype == torch.float32
+    assert out["stage4"]["depth_values"].dtype == torch.float32
+    rel = (out["depth"] - ref["depth"]).abs() / ref["depth"]
+    assert rel.median() < 1e-3 and rel.max() < 0.05
