@@ -48,6 +48,20 @@ def depth_from_logits(logits: torch.Tensor, hypotheses: torch.Tensor, temperatur
     return depth, prob.max(dim=1)[0]
 
 
+def visibility(vis: nn.Sequential, entropy: torch.Tensor) -> torch.Tensor:
+    """Run the visibility net; in inference with channels-last weights, which oneDNN runs about twice
+    as fast on these thin full-resolution maps (same numbers up to float rounding)."""
+    if vis.training:
+        return vis(entropy)
+    cl = torch.channels_last
+    x = entropy
+    for layer in vis[:3]:
+        x = F.conv2d(x, layer.conv.weight.contiguous(memory_format=cl), padding=1).contiguous(memory_format=cl)
+        x = F.relu(F.batch_norm(x, layer.bn.running_mean, layer.bn.running_var, layer.bn.weight, layer.bn.bias,
+                                False, 0.0, layer.bn.eps))
+    return torch.sigmoid(vis[3](x)).contiguous()
+
+
 class StageNet(nn.Module):
     """One cascade stage: cost volume, regulariser (CVT at stage 1, 3-D U-Nets after) and depth head."""
 
@@ -72,7 +86,7 @@ class StageNet(nn.Module):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())
                 warped = homography_warp(features[:, v].float(), src_proj, ref_proj, hypotheses)
                 corr = group_correlation(ref, warped, self.groups)
-                weight = self.vis(matching_entropy(corr))  # [B,1,H,W]
+                weight = visibility(self.vis, matching_entropy(corr))  # [B,1,H,W]
                 volume_sum = volume_sum + corr * weight[:, None]
                 vis_sum = vis_sum + weight
             return volume_sum / (vis_sum[:, None] + 1e-6)
