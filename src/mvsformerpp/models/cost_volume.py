@@ -81,13 +81,24 @@ class StageNet(nn.Module):
         with torch.autocast(device_type=features.device.type, enabled=False):
             ref = features[:, 0].float()
             ref_proj = projection_4x4(proj[:, 0, 0].float(), proj[:, 0, 1].float())
-            volume_sum, vis_sum = 0.0, 0.0
+            B, C, H, W = ref.shape
+            D = hypotheses.shape[1]
+            # Hypotheses in chunks bound the warped-feature memory (full resolution: ~0.25 GB per view).
+            step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
+            volume_sum, vis_sum = None, 0.0
             for v in range(1, features.shape[1]):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())
-                warped = homography_warp(features[:, v].float(), src_proj, ref_proj, hypotheses)
-                corr = group_correlation(ref, warped, self.groups)
+                src = features[:, v].float()
+                corr = ref.new_empty(B, self.groups, D, H, W)
+                for d in range(0, D, step):
+                    warped = homography_warp(src, src_proj, ref_proj, hypotheses[:, d:d + step])
+                    corr[:, :, d:d + step] = group_correlation(ref, warped, self.groups)
+                    del warped
                 weight = visibility(self.vis, matching_entropy(corr))  # [B,1,H,W]
-                volume_sum = volume_sum + corr * weight[:, None]
+                if volume_sum is None:
+                    volume_sum = corr * weight[:, None]
+                else:
+                    volume_sum.addcmul_(corr, weight[:, None])
                 vis_sum = vis_sum + weight
             return volume_sum / (vis_sum[:, None] + 1e-6)
 

@@ -49,6 +49,20 @@ class ImageFeatures:
         return sum(t.numel() * t.element_size() for t in [*self.vit_taps, *self.fpn])
 
 
+def per_image(fn, count: int, *inputs: torch.Tensor) -> list[torch.Tensor]:
+    """fn over images one at a time (inputs sliced along dim 0), outputs written into preallocated
+    tensors: the same result as fn on the whole batch (in eval), with a per-image working set and
+    no concatenation copies."""
+    outs = None
+    for i in range(count):
+        res = fn(*(x[i:i + 1] for x in inputs))
+        if outs is None:
+            outs = [r.new_empty((count, *r.shape[1:])) for r in res]
+        for o, r in zip(outs, res):
+            o[i:i + 1] = r
+    return outs
+
+
 def vit_input_size(H: int, W: int, rescale: float = 0.4375, patch: int = 14) -> tuple[int, int]:
     """DINOv2 input size: H*rescale and W*rescale floored to the patch size (spec 2.1)."""
     return int(H * rescale // patch * patch), int(W * rescale // patch * patch)
@@ -71,7 +85,7 @@ def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.T
     if encoder.training:
         fpn = tuple(encoder(imgs))
     else:  # image by image: same result (running statistics), smaller peak memory
-        fpn = tuple(torch.cat(level) for level in zip(*(encoder(imgs[i:i + 1]) for i in range(N))))
+        fpn = tuple(per_image(encoder, N, imgs))
     return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), fpn)
 
 
@@ -92,8 +106,6 @@ def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt:
     if decoder.training:  # BatchNorm batch statistics over all B*V images, as the reference
         stages = decoder(conv01, conv11, conv21, conv31)
     else:  # image by image: the same result (running statistics) with a much smaller working set
-        per_image = [decoder(conv01[i:i + 1], conv11[i:i + 1], conv21[i:i + 1], conv31[i:i + 1])
-                     for i in range(B * V)]
-        stages = [torch.cat(level) for level in zip(*per_image)]
+        stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)
     stages = [s.reshape(B, V, *s.shape[1:]) for s in stages]
     return fmt(stages)

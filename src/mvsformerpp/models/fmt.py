@@ -96,6 +96,13 @@ class FMTWithPathway(nn.Module):
         # align_corners=False here, unlike the FPN decoder (spec 3).
         return F.interpolate(x.float(), size=y.shape[-2:], mode="bilinear") + y
 
+    def pathway(self, s1, f2, f3, f4):
+        """Carry refined stage-1 features down to the finer stages (spec 3)."""
+        s2 = self.smooth_1(self._upsample_add(self.dim_reduction_1(s1), f2))
+        s3 = self.smooth_2(self._upsample_add(self.dim_reduction_2(s2), f3))
+        s4 = self.smooth_3(self._upsample_add(self.dim_reduction_3(s3), f4))
+        return s2, s3, s4
+
     def forward(self, features: list[torch.Tensor]) -> list[torch.Tensor]:
         """features: 4 tensors [B, V, C_s, H_s, W_s] -> the same shapes, refined."""
         f1, f2, f3, f4 = features
@@ -104,14 +111,10 @@ class FMTWithPathway(nn.Module):
         s1 = ref[:, None] if src is None else torch.cat([ref[:, None], src.reshape(B, V - 1, *src.shape[1:])], 1)
         s1 = s1.flatten(0, 1)
         f2, f3, f4 = f2.flatten(0, 1), f3.flatten(0, 1), f4.flatten(0, 1)
-        # The pathway is per image; without autograd run it image by image to bound the working set.
-        step = len(s1) if torch.is_grad_enabled() else 1
-        outs = []
-        for i in range(0, len(s1), step):
-            j = slice(i, i + step)
-            s2 = self.smooth_1(self._upsample_add(self.dim_reduction_1(s1[j]), f2[j]))
-            s3 = self.smooth_2(self._upsample_add(self.dim_reduction_2(s2), f3[j]))
-            s4 = self.smooth_3(self._upsample_add(self.dim_reduction_3(s3), f4[j]))
-            outs.append((s2, s3, s4))
-        s2, s3, s4 = (torch.cat(level) for level in zip(*outs))
+        if torch.is_grad_enabled():
+            s2, s3, s4 = self.pathway(s1, f2, f3, f4)
+        else:  # image by image, into preallocated outputs: a much smaller working set
+            from mvsformerpp.models.features import per_image
+
+            s2, s3, s4 = per_image(self.pathway, len(s1), s1, f2, f3, f4)
         return [s.reshape(B, V, *s.shape[1:]) for s in (s1, s2, s3, s4)]
