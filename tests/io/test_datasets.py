@@ -6,28 +6,10 @@ from PIL import Image
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.io.datasets import list_dtu_scans, load_blended_scene, load_dtu_scene, load_tnt_scene
-from mvsformerpp.io.mvsnet import MVSNetCam, read_cam, write_cam, write_pair
+from mvsformerpp.io.mvsnet import write_cam, write_pair
 from mvsformerpp.io.pfm import read_pfm, write_pfm
 
-from .conftest import DTU_PAIR
-
-
-def make_dtu(root, scans=("scan1",)):
-    (root / "Cameras" / "train").mkdir(parents=True)
-    for i in range(2):
-        shutil.copy(DTU_PAIR / f"{i:08d}_cam.txt", root / "Cameras" / "train" / f"{i:08d}_cam.txt")
-    # Cams for a position without a photo in this scan (DTU has 64 positions, 49 photos per scan).
-    shutil.copy(DTU_PAIR / "00000000_cam.txt", root / "Cameras" / "train" / "00000005_cam.txt")
-    write_pair(root / "Cameras" / "pair.txt", {0: [(1, 10.0), (5, 1.0)], 1: [(0, 10.0)], 5: [(0, 1.0)]})
-    for scan in scans:
-        img_dir = root / "Rectified" / f"{scan}_train"
-        dep_dir = root / "Depths" / f"{scan}_train"
-        img_dir.mkdir(parents=True)
-        dep_dir.mkdir(parents=True)
-        for i in range(2):
-            shutil.copy(DTU_PAIR / f"rect_00{i + 1}_0_r5000.png", img_dir / f"rect_00{i + 1}_3_r5000.png")
-            shutil.copy(DTU_PAIR / f"depth_map_000{i}.pfm", dep_dir / f"depth_map_000{i}.pfm")
-    return root
+from .fakes import DTU_PAIR, blended_cam, make_dtu
 
 
 def test_dtu_training_layout_with_real_views(tmp_path):
@@ -76,13 +58,6 @@ def test_dtu_scan_choice_and_errors(tmp_path):
         load_dtu_scene(tmp_path)
 
 
-def blended_cam(i):
-    cam = read_cam(DTU_PAIR / f"{i:08d}_cam.txt")
-    cam.K = cam.K.copy()
-    cam.K[:2] *= 4  # full resolution for the 640x512 photos
-    return MVSNetCam(cam.extrinsic, cam.K, depth_min=425.0, depth_max=935.0, num_depth=128)
-
-
 def test_blendedmvs_nested_layout(tmp_path):
     pid = "5a3ca9cb270f0e3f14d0eddb"
     d = tmp_path / pid / pid / pid
@@ -124,3 +99,23 @@ def test_tanks_and_temples_with_short_range_cameras(tmp_path):
         load_tnt_scene(scene_dir, short_range=True)
     (scene_dir / "cams").rename(scene_dir / "cams_1")
     assert len(load_tnt_scene(scene_dir)) == 3
+
+
+def test_dtu_raw_resolution(tmp_path):
+    root = tmp_path / "dtu"
+    (root / "Rectified_raw" / "scan3").mkdir(parents=True)
+    (root / "Depths_raw" / "scan3").mkdir(parents=True)
+    for i in range(2):
+        write_cam(root / "Cameras" / f"{i:08d}_cam.txt", blended_cam(i))  # K for the photo's own size
+        shutil.copy(DTU_PAIR / f"rect_00{i + 1}_0_r5000.png", root / "Rectified_raw" / "scan3" /
+                    f"rect_00{i + 1}_3_r5000.png")
+        write_pfm(root / "Depths_raw" / "scan3" / f"depth_map_000{i}.pfm", np.ones((512, 640), np.float32))
+        Image.new("L", (640, 512)).save(root / "Depths_raw" / "scan3" / f"depth_visual_000{i}.png")
+    write_pair(root / "Cameras" / "pair.txt", {0: [(1, 1.0)], 1: [(0, 1.0)]})
+    scene = load_dtu_scene(root).validate()  # only raw photos: "auto" picks them
+    assert [v.image_path.parent.name for v in scene.views] == ["scan3", "scan3"]
+    np.testing.assert_array_equal(scene.views[0].K, blended_cam(0).K)
+    assert scene.views[1].mask_path.name == "depth_visual_0001.png"
+    assert scene.views[1].depth_gt_path.parent.parent.name == "Depths_raw"
+    with pytest.raises(InputError, match="no train photos"):
+        load_dtu_scene(root, resolution="train")

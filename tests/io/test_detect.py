@@ -12,9 +12,7 @@ from mvsformerpp.io.detect import detect_layout, load_scene
 from mvsformerpp.io.mvsnet import write_pair
 
 from .colmap_synth import synthetic_model, write_photos
-from .conftest import DTU_PAIR, TEMPLE
-from .test_datasets import make_dtu
-from .test_mvsnet import make_dtu_mvsnet
+from .fakes import DTU_PAIR, TEMPLE, make_dtu, make_dtu_mvsnet
 
 
 def test_detects_every_layout(tmp_path):
@@ -81,6 +79,7 @@ def test_overrides(tmp_path):
     assert load_scene(mv, num_neighbors=0).views[0].neighbors == []
     temple = load_scene(TEMPLE, num_neighbors=4)
     assert all(len(v.neighbors) == 4 for v in temple.views)
+    assert max(len(v.neighbors) for v in load_scene(TEMPLE).views) > 4
     # A DTU root with several scans needs the scan.
     dtu = make_dtu(tmp_path / "dtu", scans=("scan1", "scan4"))
     with pytest.raises(InputError, match="choose one"):
@@ -101,13 +100,20 @@ def test_info_command_text_and_json(tmp_path, capsys):
     scene = load_scene(TEMPLE)
     mins = [v.depth_min for v in scene.views]
     assert data["depth_min"] == {"min": min(mins), "median": float(np.median(mins)), "max": max(mins)}
-    assert data["neighbors"] == {"min": 10.0, "median": 10.0, "max": 10.0}
+    counts = [len(v.neighbors) for v in scene.views]
+    assert data["neighbors"] == {"min": min(counts), "median": float(np.median(counts)), "max": max(counts)}
     dtu = make_dtu(tmp_path / "dtu")
     assert main(["info", str(dtu), "--json", "--num-neighbors", "1"]) == 0
     data = json.loads(capsys.readouterr().out)
     assert data["layout"] == "dtu" and data["views_with_gt_depth"] == 2 and data["neighbors"]["max"] == 1
     assert main(["info", str(dtu), "--depth-range", "1", "2", "--json"]) == 0
     assert json.loads(capsys.readouterr().out)["depth_max"]["median"] == 2.0
+    assert main(["info", str(dtu), "--views"]) == 0
+    lines = capsys.readouterr().out.splitlines()
+    assert lines[-2].split()[:3] == ["0", "00000000", "640x512"] and lines[-2].split()[-1] == "1"
+    assert main(["info", str(dtu), "--views", "--json"]) == 0
+    views = json.loads(capsys.readouterr().out)["views"]
+    assert views[1]["neighbors"] == [0] and views[1]["depth_gt"].endswith("depth_map_0001.pfm")
 
 
 def test_info_command_errors(tmp_path, capsys):

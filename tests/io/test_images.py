@@ -5,7 +5,7 @@ from PIL import Image
 from mvsformerpp.errors import FormatError
 from mvsformerpp.io.images import find_image, image_size, list_images, read_image
 
-from .conftest import DTU_PAIR, TEMPLE
+from .fakes import DTU_PAIR, TEMPLE
 
 
 def test_real_images():

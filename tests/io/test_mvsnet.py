@@ -1,5 +1,4 @@
 import logging
-import shutil
 import string
 
 import numpy as np
@@ -20,7 +19,7 @@ from mvsformerpp.io.mvsnet import (
     write_pair,
 )
 
-from .conftest import DTU_PAIR
+from .fakes import DTU_PAIR, make_dtu_mvsnet
 
 
 def rotation(seed: int) -> np.ndarray:
@@ -205,18 +204,6 @@ def test_malformed_pairs(tmp_path, text, match):
         read_pair(tmp_path / "pair.txt")
 
 
-def make_dtu_mvsnet(root, pair=True):
-    """The real DTU pair as an MVSNet scene: 640x512 photos with the 160x128 training cams."""
-    (root / "images").mkdir(parents=True)
-    (root / "cams").mkdir()
-    for i in range(2):
-        shutil.copy(DTU_PAIR / f"rect_00{i + 1}_0_r5000.png", root / "images" / f"{i:08d}.png")
-        shutil.copy(DTU_PAIR / f"{i:08d}_cam.txt", root / "cams" / f"{i:08d}_cam.txt")
-    if pair:
-        write_pair(root / "pair.txt", {0: [(1, 100.0)], 1: [(0, 100.0)]})
-    return root
-
-
 def test_load_real_dtu_scene_resolves_integer_scale(tmp_path, caplog):
     root = make_dtu_mvsnet(tmp_path / "scene")
     with caplog.at_level(logging.WARNING):
@@ -239,6 +226,10 @@ def test_scene_without_pair_gets_geometric_neighbours(tmp_path):
     root = make_dtu_mvsnet(tmp_path / "scene", pair=False)
     scene = load_mvsnet_scene(root)
     assert scene.views[0].neighbors == [1] and scene.views[1].neighbors == [0]
+    # A pair.txt kept in cams/ is found too.
+    write_pair(root / "cams" / "pair.txt", {0: [], 1: [(0, 1.0)]})
+    scene = load_mvsnet_scene(root)
+    assert scene.views[0].neighbors == [] and scene.views[1].neighbors == [0]
 
 
 def test_write_then_load_scene(tmp_path):

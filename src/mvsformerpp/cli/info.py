@@ -15,6 +15,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     )
     p.add_argument("scene", metavar="SCENE", help="scene folder or camera file")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
+    p.add_argument("--views", action="store_true", help="also list every view (size, focal, depth range, neighbours)")
     p.add_argument("--depth-range", nargs=2, type=float, metavar=("MIN", "MAX"), help="override every depth range")
     p.add_argument("--num-neighbors", type=int, help="cap the neighbour lists (default 10)")
     p.add_argument("--depth-format", choices=["auto", "interval", "max"], default="auto",
@@ -38,6 +39,6 @@ def run(args: argparse.Namespace) -> int:
         scan=args.scan,
         short_range=args.short_range,
     )
-    summary = summarize_scene(scene, layout)
+    summary = summarize_scene(scene, layout, per_view=args.views)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0

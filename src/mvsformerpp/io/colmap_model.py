@@ -162,7 +162,27 @@ def _num(tok: str, path: Path, lineno: int, kind=float):
         raise FormatError(f"line {lineno}: {tok!r} is not a valid {kind.__name__}", path) from e
     if kind is float and not np.isfinite(v):
         raise FormatError(f"line {lineno}: non-finite number {tok!r}", path)
+    if kind is int and not -(2**63) <= v < 2**63:
+        raise FormatError(f"line {lineno}: integer {tok!r} is out of range", path)
     return v
+
+
+def _floats_fast(tokens: list[str], path: Path, lineno: int) -> np.ndarray:
+    """Many floats at once (numpy parses); per-token parsing only to name a bad token."""
+    try:
+        arr = np.array(tokens, dtype=np.float64)
+    except (ValueError, OverflowError):
+        arr = np.array([_num(t, path, lineno) for t in tokens], dtype=np.float64)
+    if not np.all(np.isfinite(arr)):
+        raise FormatError(f"line {lineno}: non-finite number", path)
+    return arr
+
+
+def _ints_fast(tokens: list[str], path: Path, lineno: int) -> np.ndarray:
+    try:
+        return np.array([int(t) for t in tokens], dtype=np.int64)
+    except (ValueError, OverflowError):
+        return np.array([_num(t, path, lineno, int) for t in tokens], dtype=np.int64)
 
 
 def _camera(cid: int, model: str, width: int, height: int, params: list[float], path: Path, where: str):
@@ -218,8 +238,9 @@ def read_images_text(path: str | Path) -> dict[int, ColmapImage]:
         pn = lines[i + 1][0] if i + 1 < len(lines) else n
         if len(pts) % 3:
             raise FormatError(f"line {pn}: 2-D points come as 'X Y POINT3D_ID' triples", path)
-        arr = np.array([_num(v, path, pn) for v in pts], dtype=np.float64).reshape(-1, 3)
-        images[iid] = ColmapImage(iid, q, t, cam_id, tok[9], arr[:, :2].copy(), arr[:, 2].astype(np.int64))
+        xys = _floats_fast(pts[0::3] + pts[1::3], path, pn).reshape(2, -1).T
+        ids = _ints_fast(pts[2::3], path, pn)
+        images[iid] = ColmapImage(iid, q, t, cam_id, tok[9], np.ascontiguousarray(xys), ids)
         i += 2
     return images
 
@@ -238,7 +259,7 @@ def read_points3D_text(path: str | Path) -> dict[int, ColmapPoint3D]:
         rgb = np.array([_num(t, path, n, int) for t in tok[4:7]])
         if np.any((rgb < 0) | (rgb > 255)):
             raise FormatError(f"line {n}: colour {rgb.tolist()} is outside 0..255", path)
-        track = np.array([_num(t, path, n, int) for t in tok[8:]], dtype=np.int64).reshape(-1, 2)
+        track = _ints_fast(tok[8:], path, n).reshape(-1, 2)
         pts[pid] = ColmapPoint3D(pid, xyz, rgb.astype(np.uint8), _num(tok[7], path, n), track[:, 0].copy(),
                                  track[:, 1].copy())
     return pts

@@ -21,6 +21,8 @@ def _open(path: Path):
 
     try:
         return Image.open(path)
+    except Image.DecompressionBombError as e:
+        raise FormatError(f"image is too large to decode safely ({e}); downscale it first", path) from e
     except FileNotFoundError as e:
         raise FormatError("image file not found", path) from e
     except UnidentifiedImageError as e:

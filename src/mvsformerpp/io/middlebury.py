@@ -43,7 +43,7 @@ def read_par(path: str | Path) -> list[tuple[str, np.ndarray, np.ndarray, np.nda
     except (OSError, UnicodeDecodeError) as e:
         raise FormatError("cannot read the Middlebury par file as text", path) from e
     lines = [ln for ln in lines if ln]
-    if not lines or len(lines[0]) != 1 or not lines[0][0].isdigit():
+    if not lines or len(lines[0]) != 1 or not re.fullmatch(r"[0-9]+", lines[0][0]):
         raise FormatError("a Middlebury par file starts with the number of images on its own line", path)
     count = int(lines[0][0])
     if count != len(lines) - 1:

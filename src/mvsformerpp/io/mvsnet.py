@@ -21,22 +21,17 @@ file does not say), so ``depth_max = DEPTH_MIN + DEPTH_INTERVAL * (DEPTH_NUM - 1
 The two-number line is ambiguous: ``425 2.5`` (DTU) is min + interval, ``0.5 12.0`` (several newer
 converters) is min + max. ``depth_format="auto"`` reads it as min + max exactly when the second
 number is larger than the first: as an interval that would put the last of 192 planes beyond
-193 x DEPTH_MIN (a depth range spanning more than two orders of magnitude, which no MVS cam file
+192 x DEPTH_MIN (a depth range spanning more than two orders of magnitude, which no MVS cam file
 describes), while as a maximum it is a valid range. Otherwise it is min + interval (a maximum
 below the minimum is impossible). ``depth_format="interval"`` or ``"max"`` forces either reading;
 ``"none"`` ignores the depth line.
 
-pair.txt::
-
-    N                       number of views
-    ref_id                  then, per view, two lines:
-    M id1 score1 id2 score2 ...
+pair.txt is read and written by :mod:`mvsformerpp.io.pair` (re-exported here).
 """
 
 from __future__ import annotations
 
 import logging
-import math
 import re
 import shutil
 from dataclasses import dataclass
@@ -47,6 +42,7 @@ import numpy as np
 
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import find_image, image_size
+from mvsformerpp.io.pair import Pairs, format_pair, read_pair, write_pair
 from mvsformerpp.io.scene import Scene, View
 from mvsformerpp.io.viewselect import neighbors_from_cameras
 from mvsformerpp.utils.atomic import atomic_open
@@ -55,6 +51,11 @@ log = logging.getLogger(__name__)
 
 DepthFormat = Literal["auto", "interval", "max", "none"]
 DEFAULT_NUM_DEPTH = 192
+__all__ = [
+    "DEFAULT_NUM_DEPTH", "DepthFormat", "MVSNetCam", "Pairs", "cam_files", "format_cam", "format_pair",
+    "image_scale_factor", "load_mvsnet_scene", "match_image_size", "read_cam", "read_pair", "report_scaling",
+    "set_neighbors", "view_from_cam", "write_cam", "write_mvsnet_scene", "write_pair",
+]
 _CAM_RE = re.compile(r"^(\d+)_cam\.txt$")
 
 
@@ -217,83 +218,6 @@ def write_cam(path: str | Path, cam: MVSNetCam, num_depth: int = DEFAULT_NUM_DEP
         f.write(format_cam(cam, num_depth))
 
 
-# ---------------------------------------------------------------------------------------------- pair.txt
-
-Pairs = dict[int, list[tuple[int, float]]]
-
-
-def read_pair(path: str | Path) -> Pairs:
-    """Read pair.txt as ``{ref_id: [(src_id, score), ...]}`` in file order (best first by convention)."""
-    path = Path(path)
-    try:
-        tokens = path.read_bytes().decode("utf-8").split()
-    except FileNotFoundError as e:
-        raise InputError("pair file not found", path) from e
-    except OSError as e:
-        raise FormatError(f"cannot read pair file ({e.strerror})", path) from e
-    except UnicodeDecodeError as e:
-        raise FormatError("pair file is not text", path) from e
-    pos = 0
-
-    def take(what: str) -> str:
-        nonlocal pos
-        if pos >= len(tokens):
-            raise FormatError(f"pair file ends early: expected {what}", path)
-        pos += 1
-        return tokens[pos - 1]
-
-    def take_int(what: str) -> int:
-        tok = take(what)
-        try:
-            val = float(tok)
-        except ValueError as e:
-            raise FormatError(f"expected {what} (an integer), got {tok!r}", path) from e
-        if not math.isfinite(val) or val != int(val) or val < 0:
-            raise FormatError(f"expected {what} (a non-negative integer), got {tok!r}", path)
-        return int(val)
-
-    count = take_int("the number of views")
-    pairs: Pairs = {}
-    for k in range(count):
-        ref = take_int(f"the id of view entry {k}")
-        if ref in pairs:
-            raise FormatError(f"view {ref} is listed twice", path)
-        m = take_int(f"the number of source views of view {ref}")
-        srcs = []
-        for _ in range(m):
-            src = take_int(f"a source view id of view {ref}")
-            tok = take(f"the score of source view {src} of view {ref}")
-            try:
-                score = float(tok)
-            except ValueError as e:
-                raise FormatError(f"view {ref}: score {tok!r} of source view {src} is not a number", path) from e
-            if not math.isfinite(score):
-                raise FormatError(f"view {ref}: score of source view {src} is not finite", path)
-            srcs.append((src, score))
-        pairs[ref] = srcs
-    if pos != len(tokens):
-        raise FormatError(f"unexpected text after {count} view entries: {' '.join(tokens[pos:pos + 5])!r}", path)
-    return pairs
-
-
-def format_pair(pairs: Pairs) -> str:
-    lines = [str(len(pairs))]
-    for ref, srcs in pairs.items():
-        lines.append(str(int(ref)))
-        lines.append(" ".join([str(len(srcs))] + [f"{int(s)} {_num(sc)}" for s, sc in srcs]))
-    return "\n".join(lines) + "\n"
-
-
-def write_pair(path: str | Path, pairs: Pairs) -> None:
-    """Write pair.txt atomically from ``{ref_id: [(src_id, score), ...]}``."""
-    for ref, srcs in pairs.items():
-        for s, sc in srcs:
-            if not math.isfinite(float(sc)):
-                raise ValueError(f"view {ref}: score of source {s} is not finite")
-    with atomic_open(path, "w") as f:
-        f.write(format_pair(pairs))
-
-
 # ---------------------------------------------------------------------------------------------- scene
 
 
@@ -321,12 +245,11 @@ def image_scale_factor(K: np.ndarray, width: int, height: int, where: Path) -> f
     """The factor s (1, an integer 2..8, or 1/s) by which ``K`` must be scaled for a ``width x height`` photo.
 
     A cam file does not state its image size; its principal point does, roughly. ``K`` is accepted as
-    is when (cx, cy) lies in the central 60% of the image. Otherwise, of the integer factors s = 2..8 and
-    1/s, the one putting s * (cx, cy) nearest the image centre is taken if that is within 15% of the
-    image size: ``K[:2] *= s`` (the MVSNet
-    convention for resized images; integer pixel coordinates); the loaders log one warning per scene
-    naming the factor.
-    Anything else raises :class:`InputError`.
+    is when (cx, cy) lies in the central 60% of the image. Otherwise, of the integer factors s = 2..8
+    and 1/s, the one putting s * (cx, cy) nearest the image centre is taken if that is within 15% of
+    the image size; callers then use ``K[:2] *= s`` (the MVSNet convention for resized images, integer
+    pixel coordinates) and log one warning per scene naming the factor. Anything else raises
+    :class:`InputError`.
     """
     cx, cy = K[0, 2], K[1, 2]
 
@@ -425,7 +348,8 @@ def load_mvsnet_scene(
 
     ``root/cams/NNNNNNNN_cam.txt`` define the views (sorted by id); images are ``root/images/NNNNNNNN.*``;
     neighbours come from ``root/pair.txt`` (ids mapped to view indices), or, without one, from the
-    camera geometry (:func:`mvsformerpp.io.viewselect.neighbors_from_cameras`). ``cam_dir``,
+    camera geometry (:func:`mvsformerpp.io.viewselect.neighbors_from_cameras`); ``cams/pair.txt`` is
+    used when there is no ``root/pair.txt``. ``cam_dir``,
     ``image_dir`` and ``pair_path`` override the default locations (absolute or relative to ``root``).
     ``interval_scale`` stretches each depth range about its minimum, as the official loaders do with
     the depth interval (1.06 in the MVSFormer++ test configurations).
@@ -435,6 +359,8 @@ def load_mvsnet_scene(
         raise InputError("not a folder (expected an MVSNet scene with images/, cams/ and pair.txt)", root)
     cam_dir = root / (cam_dir or "cams")
     image_dir = root / (image_dir or "images")
+    if pair_path is None and not (root / "pair.txt").is_file() and (cam_dir / "pair.txt").is_file():
+        pair_path = cam_dir / "pair.txt"  # some releases keep it with the cams
     pair_path = root / (pair_path or "pair.txt")
     if not cam_dir.is_dir():
         raise InputError(f"no camera folder {cam_dir.name}/ (expected NNNNNNNN_cam.txt files)", root)

@@ -17,11 +17,12 @@ def _stats(values: list[float]) -> dict[str, float] | None:
     return {"min": float(arr.min()), "median": float(np.median(arr)), "max": float(arr.max())}
 
 
-def summarize_scene(scene: Scene, layout: str | None = None) -> dict[str, Any]:
+def summarize_scene(scene: Scene, layout: str | None = None, per_view: bool = False) -> dict[str, Any]:
     """JSON-ready summary: layout, view count, resolutions, depth ranges, neighbour counts, GT depth count.
 
     ``resolutions`` maps ``"WxH"`` to the number of views of that size (most common first);
-    ``depth_min``/``depth_max`` give min/median/max over the views that have a range.
+    ``depth_min``/``depth_max`` give min/median/max over the views that have a range. With
+    ``per_view``, ``views`` lists every view (name, image, size, focal lengths, depth range, neighbours).
     """
     views = scene.views
     res = Counter(f"{v.width}x{v.height}" for v in views)
@@ -39,6 +40,18 @@ def summarize_scene(scene: Scene, layout: str | None = None) -> dict[str, Any]:
         "views_without_neighbors": sum(n == 0 for n in nbrs),
         "views_with_gt_depth": sum(v.depth_gt_path is not None for v in views),
         "views_with_mask": sum(v.mask_path is not None for v in views),
+    } | ({"views": [_view_entry(v) for v in views]} if per_view else {})
+
+
+def _view_entry(v) -> dict[str, Any]:
+    return {
+        "name": v.name,
+        "image": str(v.image_path),
+        "size": [v.width, v.height],
+        "focal": [float(v.K[0, 0]), float(v.K[1, 1])],
+        "depth_range": None if v.depth_min is None else [float(v.depth_min), float(v.depth_max)],
+        "neighbors": list(v.neighbors),
+        "depth_gt": str(v.depth_gt_path) if v.depth_gt_path is not None else None,
     }
 
 
@@ -61,4 +74,12 @@ def format_summary(s: dict[str, Any]) -> str:
         + (f"; {s['views_without_neighbors']} view(s) without any" if s["views_without_neighbors"] else ""),
         f"ground truth: {s['views_with_gt_depth']} depth map(s), {s['views_with_mask']} mask(s)",
     ]
+    if "views" in s:
+        lines.append("")
+        lines.append(f"{'#':>4}  {'name':<24} {'size':>11}  {'focal':>9}  {'depth range':>23}  neighbours")
+        for i, v in enumerate(s["views"]):
+            rng = "-" if v["depth_range"] is None else f"{v['depth_range'][0]:.5g} .. {v['depth_range'][1]:.5g}"
+            size = f"{v['size'][0]}x{v['size'][1]}"
+            nb = " ".join(str(j) for j in v["neighbors"])
+            lines.append(f"{i:>4}  {v['name'][:24]:<24} {size:>11}  {v['focal'][0]:>9.6g}  {rng:>23}  {nb}")
     return "\n".join(lines)

@@ -18,6 +18,8 @@ import numpy as np
 THETA0_DEG = 5.0
 SIGMA1_DEG = 1.0
 SIGMA2_DEG = 10.0
+# Camera-only selection (no points): pairs seen from further apart than this are not neighbours.
+MAX_CAMERA_ANGLE_DEG = 90.0
 
 
 def triangulation_angle_score(theta_deg: np.ndarray) -> np.ndarray:
@@ -38,22 +40,38 @@ def ray_angle_deg(point: np.ndarray, c1: np.ndarray, c2: np.ndarray) -> np.ndarr
 
 
 def pair_scores_from_points(
-    centers: np.ndarray, points: np.ndarray, visibility: list[np.ndarray]
+    centers: np.ndarray, points: np.ndarray, visibility: list[np.ndarray], cache_bytes: int = 512 << 20
 ) -> np.ndarray:
     """Score matrix [N, N] (zero diagonal) from shared points.
 
     ``centers`` [N, 3] camera centres; ``points`` [P, 3]; ``visibility[i]`` the indices of the points
-    view i sees. Score(i, j) = sum over points seen by both of G(angle at the point).
+    view i sees. Score(i, j) = sum over points seen by both of G(angle at the point). The unit rays
+    point -> camera are cached for all views when they fit in ``cache_bytes``.
     """
-    n = len(centers)
+    centers = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
+    points = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    n, p = len(centers), len(points)
+    vis = np.zeros((n, p), dtype=bool)
+    for i, idx in enumerate(visibility):
+        vis[i, np.asarray(idx, dtype=np.int64)] = True
+
+    def rays(i: int, sel: np.ndarray | slice = slice(None)) -> np.ndarray:
+        d = centers[i] - points[sel]
+        return d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-300)
+
+    cache = [rays(i) for i in range(n)] if n * p * 24 <= cache_bytes else None
     scores = np.zeros((n, n), dtype=np.float64)
-    sets = [np.unique(np.asarray(v, dtype=np.int64)) for v in visibility]
     for i in range(n):
+        if not vis[i].any():
+            continue
+        ui = cache[i] if cache is not None else rays(i)
         for j in range(i + 1, n):
-            shared = np.intersect1d(sets[i], sets[j], assume_unique=True)
+            shared = np.flatnonzero(vis[i] & vis[j])
             if shared.size == 0:
                 continue
-            theta = ray_angle_deg(points[shared], centers[i], centers[j])
+            uj = cache[j][shared] if cache is not None else rays(j, shared)
+            cos = np.einsum("ij,ij->i", ui[shared], uj)
+            theta = np.degrees(np.arccos(np.clip(cos, -1.0, 1.0)))
             scores[i, j] = scores[j, i] = float(triangulation_angle_score(theta).sum())
     return scores
 
@@ -100,7 +118,8 @@ def neighbors_from_cameras(
     Heuristic: the scene centre is taken as the point closest to all optical axes
     (:func:`point_closest_to_axes`) and the pair score is G(angle at that point), i.e. the MVSNet
     score with one shared point. When that point is ill-posed (parallel axes), the angle between the
-    viewing directions stands in for the triangulation angle.
+    viewing directions stands in for the triangulation angle. Pairs more than 90 degrees apart are
+    not neighbours.
     """
     C = np.asarray(centers, dtype=np.float64).reshape(-1, 3)
     D = np.asarray(directions, dtype=np.float64).reshape(-1, 3)
@@ -116,6 +135,7 @@ def neighbors_from_cameras(
                 theta = ray_angle_deg(X, C[i], C[j])
             else:
                 theta = np.degrees(np.arccos(np.clip(D[i] @ D[j], -1.0, 1.0)))
-            # Floor at a tiny positive value so that every other view stays a (low-ranked) candidate.
-            scores[i, j] = max(float(triangulation_angle_score(theta)), 1e-12)
+            # Views more than MAX_CAMERA_ANGLE_DEG apart rarely see the same side of a surface.
+            if theta <= MAX_CAMERA_ANGLE_DEG:
+                scores[i, j] = float(triangulation_angle_score(theta))
     return top_neighbors(scores, k)
