@@ -379,6 +379,10 @@ def load_mvsnet_scene(
         views.append(view_from_cam(stem, cam_path, img, depth_format, num_depth, interval_scale, scales))
     report_scaling(root, scales)
     set_neighbors(views, list(cams), pair_path, num_neighbors)
+    for view in views:  # ground truth beside the scene, as `mvsformerpp synth` writes it
+        gt, mask = root / "depth_gt" / f"{view.name}.pfm", root / "masks" / f"{view.name}.png"
+        view.depth_gt_path = gt if gt.is_file() else None
+        view.mask_path = mask if mask.is_file() else None
     return Scene(views=views, root=root, source_format="mvsnet")
 
 

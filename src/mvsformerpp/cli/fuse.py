@@ -1,0 +1,37 @@
+"""``mvsformerpp fuse DIR -o cloud.ply``: fusion alone, on depth maps that already exist."""
+
+from __future__ import annotations
+
+import argparse
+
+
+def register(sub: argparse._SubParsersAction) -> None:
+    from mvsformerpp.fusion.config import PRESETS
+
+    p = sub.add_parser(
+        "fuse",
+        help="fuse existing depth maps into a point cloud",
+        description="Fuse the depth maps of a scene folder (images/, cams/, pair.txt, depth_est/, "
+        "confidence/: the layout reconstruct and MVSNet-family test scripts write) into a binary PLY.",
+    )
+    p.add_argument("folder", help="scene folder with depth_est/ (and confidence/)")
+    p.add_argument("-o", "--output", help="output PLY (default FOLDER/fused.ply)")
+    p.add_argument("--fusion", "--preset", dest="preset", default="normal", choices=sorted(PRESETS),
+                   help="filter or named preset (dtu and tnt_* are the reference's settings)")
+    p.add_argument("--conf", type=float, help="confidence threshold")
+    p.add_argument("--disp", type=float, help="reprojection (normal) or disparity (gipuma) threshold")
+    p.add_argument("--num-consistent", type=int, help="consistent source views needed")
+    p.add_argument("--num-src-views", type=int, help="source views checked per reference view")
+    p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=run)
+
+
+def run(args: argparse.Namespace) -> int:
+    from mvsformerpp.fusion import get_config
+    from mvsformerpp.pipelines.fuse import fuse
+
+    config = get_config(args.preset, conf_threshold=args.conf, disp_threshold=args.disp,
+                        num_consistent=args.num_consistent, num_src_views=args.num_src_views)
+    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet)
+    return 0

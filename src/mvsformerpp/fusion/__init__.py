@@ -1,0 +1,47 @@
+"""Depth-map fusion into a coloured point cloud: ``normal``, ``dynamic`` (DPCD) and ``gipuma`` filters."""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+
+from mvsformerpp.fusion.config import PRESETS, FusionConfig, get_config
+from mvsformerpp.fusion.core import FusionView, fuse_views
+from mvsformerpp.io.scene import Scene
+
+__all__ = ["FusionConfig", "FusionView", "PRESETS", "fuse_depth_maps", "fuse_views", "get_config", "make_views"]
+
+
+def make_views(scene: Scene, depths: list[np.ndarray], confidences: list[np.ndarray] | None,
+               images: list[np.ndarray], device: str | torch.device = "cpu") -> list[FusionView]:
+    """Scene cameras + per-view depth/confidence/image arrays -> :class:`FusionView` at depth resolution.
+
+    K is scaled when a depth map is smaller or larger than its image (continuous-coordinate rule
+    K' = diag(sx, sy, 1) K); images are resized to the depth resolution for colours.
+    """
+    from PIL import Image
+
+    views = []
+    for i, view in enumerate(scene.views):
+        depth = np.asarray(depths[i], dtype=np.float32)
+        h, w = depth.shape
+        sx, sy = w / view.width, h / view.height
+        K = np.diag([sx, sy, 1.0]) @ view.K
+        img = np.asarray(images[i])
+        if img.shape[:2] != (h, w):
+            img = np.asarray(Image.fromarray(img).resize((w, h), Image.BILINEAR))
+        conf = np.ones_like(depth) if confidences is None else np.asarray(confidences[i], dtype=np.float32)
+        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
+        t = lambda a, dt=torch.float32: torch.as_tensor(a, dtype=dt, device=device)  # noqa: E731
+        views.append(FusionView(t(depth), t(conf), t(K), t(view.extrinsic), t(img[..., :3], torch.uint8)))
+    return views
+
+
+def fuse_depth_maps(scene: Scene, depths, confidences, images, config: FusionConfig | None = None,
+                    device: str | torch.device = "cpu", progress=None) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse per-view depth maps (scene units, 0 = none) into world points [N,3] and colours [N,3] uint8."""
+    config = config or FusionConfig()
+    views = make_views(scene, depths, confidences, images, device)
+    neighbors = [v.neighbors for v in scene.views]
+    with torch.no_grad():
+        return fuse_views(views, neighbors, config, progress)

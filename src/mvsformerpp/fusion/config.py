@@ -1,0 +1,53 @@
+"""Fusion settings: a frozen dataclass and named presets (the reference's DTU and Tanks-and-Temples ones)."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Literal
+
+Method = Literal["normal", "dynamic", "gipuma"]
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    method: Method = "normal"
+    """normal: fixed reprojection thresholds; dynamic: DPCD level-wise thresholds; gipuma: fusibile's rule."""
+    conf_threshold: float = 0.5
+    """Keep reference pixels whose confidence is above this (all methods); normal and gipuma also drop
+    source depths at or below it."""
+    num_src_views: int = 10
+    """Source views checked per reference view (its best neighbours)."""
+    disp_threshold: float = 1.0
+    """normal: reprojection error in pixels; gipuma: disparity difference (f * baseline / depth)."""
+    rel_depth_threshold: float = 0.01
+    """normal: relative depth difference |d_ref - d| / max(d_ref, d)."""
+    num_consistent: int = 1
+    """normal and gipuma: consistent source views needed to keep a pixel."""
+    dist_base: float = 4.0
+    """dynamic: level k allows k / dist_base pixels of reprojection error."""
+    rel_diff_base: float = 1300.0
+    """dynamic: level k allows a relative depth error of k / rel_diff_base."""
+    chunk_pixels: int = 1 << 20
+    """Reference pixels processed at once (bounds memory: about 100 bytes x pixels x source views)."""
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+
+PRESETS: dict[str, FusionConfig] = {
+    "normal": FusionConfig(),
+    "dynamic": FusionConfig(method="dynamic", conf_threshold=0.3),
+    "gipuma": FusionConfig(method="gipuma", disp_threshold=0.25, num_consistent=3, conf_threshold=0.5),
+    # The reference's settings (scripts/test.sh, test_tt_*.sh; spec section 10).
+    "dtu": FusionConfig(method="gipuma", conf_threshold=0.5, disp_threshold=0.1, num_consistent=2),
+    "tnt_intermediate": FusionConfig(method="dynamic", conf_threshold=0.6, num_src_views=10),
+    "tnt_advanced": FusionConfig(method="dynamic", conf_threshold=0.3, num_src_views=15),
+}
+
+
+def get_config(name: str = "normal", **overrides) -> FusionConfig:
+    """A preset by name, with field overrides (None values are ignored)."""
+    if name not in PRESETS:
+        raise ValueError(f"unknown fusion preset {name!r}; choose one of {sorted(PRESETS)}")
+    return dataclasses.replace(PRESETS[name], **{k: v for k, v in overrides.items() if v is not None})

@@ -1,0 +1,77 @@
+"""Network configuration: a frozen dataclass with named presets."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+
+
+@dataclass(frozen=True)
+class ModelConfig:
+    """Every hyper-parameter of the network; ``paper`` is config/mvsformer++.json of the reference."""
+
+    vit_dim: int = 768
+    """DINOv2 embedding width (ViT-B/14: 768)."""
+    vit_depth: int = 12
+    """Number of DINOv2 blocks; SVA taps every depth/3 blocks."""
+    vit_heads: int = 12
+    vit_patch: int = 14
+    vit_img_size: int = 518
+    """Pre-training image size: sets the 37x37 positional-embedding grid."""
+    vit_rescale: float = 0.4375
+    """DINOv2 input = image x 7/16, so a 14-px patch covers 32 input pixels."""
+    freeze_vit: bool = True
+    """Frozen backbone (pre-trained weights); the lite preset trains its small ViT."""
+    sva_heads: int = 12
+    """Heads of Side View Attention on DINOv2 tokens (width = vit_dim)."""
+    sva_prev_value: float = 0.5
+    feat_chs: tuple[int, int, int, int] = (8, 16, 32, 64)
+    """FPN channels at 1/1, 1/2, 1/4, 1/8."""
+    fmt_heads: int = 4
+    fmt_layers: tuple[str, ...] = ("self", "cross", "self", "cross")
+    groups: int = 8
+    """Group-wise correlation groups at every stage."""
+    num_hypotheses: tuple[int, int, int, int] = (32, 16, 8, 4)
+    hypothesis_ratio: tuple[float, float, float, float] = (4.0, 2.67, 1.5, 1.0)
+    """Half-width of the stage-s window in previous inverse-depth steps (entry 0 unused)."""
+    cvt_dim: int = 64
+    cvt_heads: int = 4
+    cvt_layers: int = 6
+    cvt_patch: tuple[int, int, int] = (2, 4, 4)
+    cvt_train_avg_tokens: int = 12185
+    """n_train of adaptive attention scaling."""
+    temperatures: tuple[float, float, float, float] = (5.0, 5.0, 5.0, 1.0)
+    """Inference temperature per stage."""
+    loss_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
+    attention_backend: str = "sdpa"
+    """Softmax attention kernel: sdpa | flash | eager | auto."""
+    extra: dict = field(default_factory=dict, compare=False)
+
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d.pop("extra")
+        return d
+
+    @classmethod
+    def from_dict(cls, d: dict) -> ModelConfig:
+        names = {f.name: f for f in dataclasses.fields(cls)}
+        unknown = set(d) - set(names)
+        if unknown:
+            raise ValueError(f"unknown model config keys {sorted(unknown)}")
+        kw = {k: tuple(v) if isinstance(v, list) else v for k, v in d.items()}
+        return cls(**kw)
+
+
+PRESETS: dict[str, ModelConfig] = {
+    "paper": ModelConfig(),
+    # BlendedMVS+DTU fine-tuning (mvsformer++_ft.json): the same network; it differs in training only.
+    "paper_finetune": ModelConfig(),
+    # Same architecture, much smaller ViT and SVA, trainable backbone (no pretrained weights exist).
+    "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2),
+}
+
+
+def get_config(preset: str = "paper", **overrides) -> ModelConfig:
+    if preset not in PRESETS:
+        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
+    return dataclasses.replace(PRESETS[preset], **overrides)

@@ -1,0 +1,131 @@
+"""Cost Volume Transformer at stage 1 (paper sec. 3.3; spec 6.1): frustoconical positional encoding,
+patchify (2,4,4), Post-LN transformer blocks with adaptive attention scaling, unpatchify.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+from mvsformerpp.models.attention import softmax_attention
+from mvsformerpp.models.layers import LayerNorm3D
+
+# Mean stage-1 token count over the 25 training scales (spec 6.1); the reference truncates 12185.6.
+TRAIN_AVG_TOKENS = 12185
+
+
+def adaptive_attention_scale(head_dim: int, num_tokens: int, train_avg_tokens: int = TRAIN_AVG_TOKENS) -> float:
+    """AAS: head_dim^-0.5 * log_{n_train}(L), keeping attention entropy stable across resolutions."""
+    return head_dim ** -0.5 * math.log(num_tokens) / math.log(train_avg_tokens)
+
+
+def frustum_coordinates(K: torch.Tensor, hypotheses: torch.Tensor, depth_min: torch.Tensor,
+                        depth_max: torch.Tensor) -> torch.Tensor:
+    """Normalised camera-frame coordinates of every (hypothesis, pixel) of the stage-1 volume (FPE, spec 6.1).
+
+    K: [B,3,3] stage-1 intrinsics; hypotheses: [B,D,H,W]. P = K^-1 [x,y,1]^T d for integer pixels;
+    X and Y min-max normalised over the whole tensor (all samples), Z clamped to [dmin, dmax] and
+    normalised. Returns [B, 3, D, H, W] in [0, 1].
+    """
+    B, D, H, W = hypotheses.shape
+    y, x = torch.meshgrid(
+        torch.arange(H, dtype=torch.float32, device=K.device),
+        torch.arange(W, dtype=torch.float32, device=K.device),
+        indexing="ij",
+    )
+    xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones(H * W, device=K.device)))
+    rays = torch.inverse(K.float()) @ xyz  # [B, 3, HW]
+    pts = rays[:, :, None] * hypotheses.reshape(B, 1, D, H * W)  # [B, 3, D, HW]
+    px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
+    nx = (px - px.min()) / (px.max() - px.min() + 1e-5)
+    ny = (py - py.min()) / (py.max() - py.min() + 1e-5)
+    nz = (torch.clamp(pz, depth_min, depth_max) - depth_min) / (depth_max - depth_min + 1e-5)
+    return torch.stack((nx, ny, nz), dim=1).reshape(B, 3, D, H, W)
+
+
+def sine_encoding_3d(coords: torch.Tensor, channels: int, rescale: float = 4.0) -> torch.Tensor:
+    """[B,3,D,H,W] coordinates in [0,1] -> [B, 3*channels, D, H, W]: per axis sin/cos(4 a w_i), w_i = 10000^(-2i/C)."""
+    B, _, D, H, W = coords.shape
+    div = torch.exp(torch.arange(0, channels, 2, device=coords.device).float() * (-math.log(10000.0) / channels))
+    out = []
+    for axis in range(3):
+        a = coords[:, axis].reshape(B, 1, -1) * rescale * div[None, :, None]  # [B, C/2, DHW]
+        pe = torch.stack((torch.sin(a), torch.cos(a)), dim=2).reshape(B, channels, -1)
+        out.append(pe)
+    return torch.cat(out, dim=1).reshape(B, 3 * channels, D, H, W)
+
+
+class CVTAttention(nn.Module):
+    """Multi-head softmax self-attention with AAS as the scale."""
+
+    def __init__(self, dim: int, num_heads: int, train_avg_tokens: int = TRAIN_AVG_TOKENS):
+        super().__init__()
+        self.num_heads, self.train_avg_tokens = num_heads, train_avg_tokens
+        self.qkv = nn.Linear(dim, dim * 3, bias=False)
+        self.proj = nn.Linear(dim, dim)
+        self.backend = "sdpa"
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        B, N, C = x.shape
+        hd = C // self.num_heads
+        qkv = self.qkv(x).reshape(B, N, 3, self.num_heads, hd).permute(2, 0, 3, 1, 4)
+        scale = adaptive_attention_scale(hd, N, self.train_avg_tokens)
+        out = softmax_attention(qkv[0], qkv[1], qkv[2], scale=scale, backend=self.backend)
+        return self.proj(out.transpose(1, 2).reshape(B, N, C))
+
+
+class FFN(nn.Module):
+    def __init__(self, dim: int, hidden: int):
+        super().__init__()
+        self.linear1 = nn.Linear(dim, hidden)
+        self.act = nn.GELU()
+        self.linear2 = nn.Linear(hidden, dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        return self.linear2(self.act(self.linear1(x)))
+
+
+class CVTBlock(nn.Module):
+    """Post-LN block with scalar gammas: x = LN1(x + g1 Attn(x)); x = LN2(x + g2 FFN(x))."""
+
+    def __init__(self, dim: int, num_heads: int, mlp_ratio: float = 4.0, train_avg_tokens: int = TRAIN_AVG_TOKENS):
+        super().__init__()
+        self.attn = CVTAttention(dim, num_heads, train_avg_tokens)
+        self.gamma1 = nn.Parameter(torch.tensor(1.0))
+        self.norm1 = nn.LayerNorm(dim)
+        self.ffn = FFN(dim, int(dim * mlp_ratio))
+        self.gamma2 = nn.Parameter(torch.tensor(1.0))
+        self.norm2 = nn.LayerNorm(dim)
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        x = self.norm1(x + self.gamma1 * self.attn(x))
+        return self.norm2(x + self.gamma2 * self.ffn(x))
+
+
+class CostVolumeTransformer(nn.Module):
+    """[B, C, D, H, W] cost volume (+ FPE) -> logits [B, 1, D, H, W]."""
+
+    def __init__(self, in_ch: int = 8, mid_ch: int = 64, num_heads: int = 4, num_layers: int = 6,
+                 patch=(2, 4, 4), mlp_ratio: float = 4.0, train_avg_tokens: int = TRAIN_AVG_TOKENS):
+        super().__init__()
+        self.in_ch = in_ch
+        self.pe_proj = nn.Conv3d(in_ch * 3, in_ch, 1, bias=False)
+        self.down = nn.Sequential(nn.Conv3d(in_ch, mid_ch, patch, stride=patch), LayerNorm3D(mid_ch))
+        self.attention_layers = nn.ModuleList(
+            [CVTBlock(mid_ch, num_heads, mlp_ratio, train_avg_tokens) for _ in range(num_layers)]
+        )
+        self.up = nn.Sequential(nn.ConvTranspose3d(mid_ch, in_ch, patch, stride=patch), LayerNorm3D(in_ch))
+        self.prob = nn.Conv3d(in_ch, 1, 1)
+
+    def forward(self, volume: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
+        if coords is not None:
+            volume = volume + self.pe_proj(sine_encoding_3d(coords, self.in_ch))
+        x = self.down(volume)
+        B, C, d, h, w = x.shape
+        tokens = x.permute(0, 3, 4, 2, 1).reshape(B, h * w * d, C)  # (h, w, d) order, as the reference
+        for layer in self.attention_layers:
+            tokens = layer(tokens)
+        x = tokens.reshape(B, h, w, d, C).permute(0, 4, 3, 1, 2)
+        return self.prob(self.up(x))

@@ -1,0 +1,99 @@
+"""Image features: the per-image part (DINOv2 taps, FPN encoder) and the multi-view part (SVA, FPN
+decoder, FMT). Splitting them lets inference compute each image's features once and reuse them for
+every reference view that uses the image.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+import torch.nn.functional as F
+
+from mvsformerpp.models.dinov2 import DinoVisionTransformer
+from mvsformerpp.models.fmt import FMTWithPathway
+from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
+from mvsformerpp.models.sva import SideViewAttention
+
+
+@dataclass
+class ImageFeatures:
+    """Per-image work for N images (rows in batch-major order when used for a [B, V] batch).
+
+    vit_taps: 3 tensors [N, h*w, C_vit]; vit_hw: the DINOv2 token grid (h, w);
+    fpn: encoder outputs (conv01 [N,8,H,W], conv11 [N,16,H/2,W/2], conv21 [N,32,H/4,W/4], conv31 [N,64,H/8,W/8]).
+    """
+
+    vit_taps: list[torch.Tensor]
+    vit_hw: tuple[int, int]
+    fpn: tuple[torch.Tensor, ...]
+
+    def __len__(self) -> int:
+        return self.fpn[0].shape[0]
+
+    def index(self, idx) -> ImageFeatures:
+        """Select images (a list/tensor of indices or a slice)."""
+        if not isinstance(idx, slice):
+            idx = torch.as_tensor(idx, dtype=torch.long, device=self.fpn[0].device)
+        return ImageFeatures([t[idx] for t in self.vit_taps], self.vit_hw, tuple(t[idx] for t in self.fpn))
+
+    @staticmethod
+    def cat(items: list[ImageFeatures]) -> ImageFeatures:
+        return ImageFeatures(
+            [torch.cat([it.vit_taps[i] for it in items]) for i in range(len(items[0].vit_taps))],
+            items[0].vit_hw,
+            tuple(torch.cat([it.fpn[i] for it in items]) for i in range(len(items[0].fpn))),
+        )
+
+    def nbytes(self) -> int:
+        return sum(t.numel() * t.element_size() for t in [*self.vit_taps, *self.fpn])
+
+
+def vit_input_size(H: int, W: int, rescale: float = 0.4375, patch: int = 14) -> tuple[int, int]:
+    """DINOv2 input size: H*rescale and W*rescale floored to the patch size (spec 2.1)."""
+    return int(H * rescale // patch * patch), int(W * rescale // patch * patch)
+
+
+def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.Tensor,
+                  vit_rescale: float = 0.4375) -> ImageFeatures:
+    """[N, 3, H, W] ImageNet-normalised images -> :class:`ImageFeatures`.
+
+    DINOv2 runs without autograd when it is frozen (all its parameters have requires_grad False).
+    """
+    N, _, H, W = imgs.shape
+    vh, vw = vit_input_size(H, W, vit_rescale, vit.patch_size)
+    if vh == 0 or vw == 0:
+        raise ValueError(f"images of {H}x{W} are too small for the DINOv2 branch (need at least 32x32)")
+    vit_imgs = F.interpolate(imgs, (vh, vw), mode="bicubic", align_corners=False)
+    frozen = not any(p.requires_grad for p in vit.parameters())
+    with torch.set_grad_enabled(torch.is_grad_enabled() and not frozen):
+        taps = vit.forward_taps(vit_imgs)
+    if encoder.training:
+        fpn = tuple(encoder(imgs))
+    else:  # image by image: same result (running statistics), smaller peak memory
+        fpn = tuple(torch.cat(level) for level in zip(*(encoder(imgs[i:i + 1]) for i in range(N))))
+    return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), fpn)
+
+
+def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt: FMTWithPathway,
+                       feats: ImageFeatures, B: int, V: int) -> list[torch.Tensor]:
+    """Fuse the views of each sample: SVA on DINOv2 tokens, add to conv31, FPN decoder, FMT + pathway.
+
+    ``feats`` holds B*V images in batch-major order (view 0 of each sample is its reference).
+    Returns 4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1). Every sample uses its own
+    DINOv2 features (the reference gives all samples sample 0's in eval mode, spec 14.1).
+    """
+    taps = [t.reshape(B, V, *t.shape[1:]) for t in feats.vit_taps]
+    vit_feat = decoder_vit(taps, feats.vit_hw)  # [B*V, 64, 4h, 4w]
+    conv01, conv11, conv21, conv31 = feats.fpn
+    if vit_feat.shape[-2:] != conv31.shape[-2:]:
+        vit_feat = F.interpolate(vit_feat, size=conv31.shape[-2:], mode="bilinear", align_corners=False)
+    conv31 = conv31 + vit_feat
+    if decoder.training:  # BatchNorm batch statistics over all B*V images, as the reference
+        stages = decoder(conv01, conv11, conv21, conv31)
+    else:  # image by image: the same result (running statistics) with a much smaller working set
+        per_image = [decoder(conv01[i:i + 1], conv11[i:i + 1], conv21[i:i + 1], conv31[i:i + 1])
+                     for i in range(B * V)]
+        stages = [torch.cat(level) for level in zip(*per_image)]
+    stages = [s.reshape(B, V, *s.shape[1:]) for s in stages]
+    return fmt(stages)

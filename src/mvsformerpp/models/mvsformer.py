@@ -1,0 +1,111 @@
+"""The MVSFormer++ network (Cao, Ren, Fu, ICLR 2024): tensors in, per-stage depth out."""
+
+from __future__ import annotations
+
+import torch
+import torch.nn.functional as F
+from torch import nn
+
+from mvsformerpp.models.config import ModelConfig
+from mvsformerpp.models.cost_volume import StageNet
+from mvsformerpp.models.cvt import frustum_coordinates
+from mvsformerpp.models.dinov2 import DinoVisionTransformer
+from mvsformerpp.models.features import ImageFeatures, encode_images, multiview_features
+from mvsformerpp.models.fmt import FMTWithPathway
+from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
+from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
+from mvsformerpp.models.sva import SideViewAttention
+
+
+class MVSFormerPP(nn.Module):
+    """MVSFormer++. Attribute names match the reference so official checkpoints load strictly."""
+
+    def __init__(self, config: ModelConfig | None = None):
+        super().__init__()
+        self.config = cfg = config or ModelConfig()
+        self.encoder = FPNEncoder(cfg.feat_chs)
+        self.decoder = FPNDecoder(cfg.feat_chs)
+        self.vit = DinoVisionTransformer(
+            cfg.vit_dim, cfg.vit_depth, cfg.vit_heads, 4.0, cfg.vit_patch, cfg.vit_img_size
+        )
+        self.decoder_vit = SideViewAttention(cfg.vit_dim, cfg.sva_heads, 3, cfg.feat_chs[3], 4.0, cfg.sva_prev_value)
+        self.FMT_module = FMTWithPathway(cfg.feat_chs[3], cfg.fmt_heads, cfg.fmt_layers, cfg.feat_chs[0])
+        cvt = dict(mid_ch=cfg.cvt_dim, num_heads=cfg.cvt_heads, num_layers=cfg.cvt_layers, patch=cfg.cvt_patch,
+                   train_avg_tokens=cfg.cvt_train_avg_tokens)
+        self.fusions = nn.ModuleList(
+            [StageNet(n, cfg.groups, "cvt" if i == 0 else "unet", cvt) for i, n in enumerate(cfg.num_hypotheses)]
+        )
+        if cfg.freeze_vit:
+            self.vit.requires_grad_(False)
+        self.vit.mask_token.requires_grad_(False)  # in DINOv2 checkpoints, never used here
+        self.set_attention_backend(cfg.attention_backend)
+
+    def set_attention_backend(self, backend: str) -> None:
+        """Softmax attention kernel for DINOv2 and the CVT: sdpa | flash | eager | auto."""
+        for m in self.modules():
+            if hasattr(m, "backend"):
+                m.backend = backend
+
+    def encode_images(self, imgs: torch.Tensor) -> ImageFeatures:
+        """Per-image work for [N, 3, H, W] ImageNet-normalised images (H, W multiples of 32)."""
+        return encode_images(self.vit, self.encoder, imgs, self.config.vit_rescale)
+
+    def forward(self, imgs: torch.Tensor, proj_matrices: dict, depth_values: torch.Tensor,
+                temperatures=None, image_features: ImageFeatures | None = None) -> dict:
+        """Run the cascade.
+
+        Args:
+            imgs: [B, V, 3, H, W] ImageNet-normalised RGB, view 0 = reference; H, W multiples of 32
+                (64 recommended).
+            proj_matrices: {"stage1".."stage4": [B, V, 2, 4, 4]}: slot 0 world-to-camera 4x4, slot 1
+                [:3,:3] intrinsics at that stage's scale (K/8, K/4, K/2, K).
+            depth_values: [B, D]; only the first (dmin) and last (dmax) entries are used.
+            temperatures: per-stage inference temperatures (default config.temperatures); ignored in
+                training mode, which takes the argmax hypothesis.
+            image_features: precomputed :meth:`encode_images` output for the B*V images (batch-major);
+                ``imgs`` is then only used for its shape.
+        Returns:
+            {"stage1".."stage4": {"depth" [B,h,w], "photometric_confidence" [B,h,w],
+            "prob_volume_pre" [B,D,h,w] logits, "depth_values" [B,D,h,w] hypotheses},
+            "depth" [B,H,W] (stage 4), "photometric_confidence" [B,H,W] (mean of the 4 stages)}.
+        """
+        B, V, _, H, W = imgs.shape
+        cfg = self.config
+        if H % 32 or W % 32:
+            raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
+        if image_features is None:
+            image_features = self.encode_images(imgs.reshape(B * V, *imgs.shape[2:]))
+        features = multiview_features(self.decoder_vit, self.decoder, self.FMT_module, image_features, B, V)
+        temps = tuple(cfg.temperatures if temperatures is None else temperatures)
+        dmin_all, dmax_all = depth_values.min(), depth_values.max()
+        outputs: dict = {}
+        conf_sum = torch.zeros(B, H, W, dtype=torch.float32, device=imgs.device)
+        prev = None
+        for s, stage in enumerate(self.fusions):
+            feat = features[s]
+            h, w = feat.shape[-2:]
+            proj = proj_matrices[f"stage{s + 1}"]
+            if s == 0:
+                hyp = initial_hypotheses(depth_values.float(), cfg.num_hypotheses[0], h, w)
+                coords = frustum_coordinates(proj[:, 0, 1, :3, :3], hyp, dmin_all, dmax_all)
+            else:
+                min_inv = 0.1 / depth_values[:, -1].float()
+                hyp = refined_hypotheses(prev["depth"].detach(), prev["depth_values"], cfg.num_hypotheses[s],
+                                         cfg.hypothesis_ratio[s], h, w, min_inverse=min_inv)
+                coords = None
+            prev = stage(feat, proj, hyp, None if self.training else temps[s], coords)
+            outputs[f"stage{s + 1}"] = prev
+            conf = prev["photometric_confidence"]
+            if conf.shape[-2:] != (H, W):
+                conf = F.interpolate(conf[:, None], (H, W), mode="nearest")[:, 0]
+            conf_sum = conf_sum + conf
+        outputs["depth"] = prev["depth"]
+        outputs["photometric_confidence"] = conf_sum / len(self.fusions)
+        return outputs
+
+
+def build_model(preset: str = "paper", **overrides) -> MVSFormerPP:
+    """The network for a named preset (``paper``, ``paper_finetune``, ``lite``) with config overrides."""
+    from mvsformerpp.models.config import get_config
+
+    return MVSFormerPP(get_config(preset, **overrides))

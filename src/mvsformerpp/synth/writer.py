@@ -1,0 +1,80 @@
+"""Write synthetic scenes in the MVSNet layout with ground truth."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+from PIL import Image
+
+from mvsformerpp.io.mvsnet import MVSNetCam, write_cam, write_pair
+from mvsformerpp.io.pfm import write_pfm
+from mvsformerpp.io.ply import write_ply
+from mvsformerpp.synth.render import random_scene, render_view
+from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
+
+
+def _save_png(path: Path, array: np.ndarray) -> None:
+    with atomic_open(path, "wb") as f:
+        Image.fromarray(array).save(f, format="PNG")
+
+
+def _pairs(centers: np.ndarray, num_neighbors: int) -> dict:
+    """Neighbours by camera distance (the arc order), scores decreasing with distance."""
+    pairs = {}
+    for i, c in enumerate(centers):
+        dist = np.linalg.norm(centers - c, axis=1)
+        order = [j for j in np.argsort(dist, kind="stable") if j != i][:num_neighbors]
+        pairs[i] = [(int(j), float(1.0 / (1e-3 + dist[j]))) for j in order]
+    return pairs
+
+
+def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, height: int = 256, width: int = 320,
+                   num_objects: int | None = None, gt_points: int = 200_000) -> Path:
+    """Render a scene and write it (deterministic for a seed):
+
+    ``images/NNNNNNNN.png``, ``cams/NNNNNNNN_cam.txt`` (4-number depth line from the GT depth range),
+    ``pair.txt``, ``depth_gt/NNNNNNNN.pfm`` (exact z-depth), ``masks/NNNNNNNN.png`` (255 = valid
+    depth), ``gt_surface.ply`` (coloured points on the visible surfaces) and ``scene.json``.
+    """
+    out = Path(out_dir)
+    scene = random_scene(seed, num_views, height, width, num_objects)
+    all_pts, all_rgb = [], []
+    for i, cam in enumerate(scene.cameras):
+        image, depth, pts = render_view(scene, cam)
+        valid = depth > 0
+        stem = f"{i:08d}"
+        _save_png(out / "images" / f"{stem}.png", image)
+        _save_png(out / "masks" / f"{stem}.png", (valid * 255).astype(np.uint8))
+        write_pfm(out / "depth_gt" / f"{stem}.pfm", depth)
+        dmin, dmax = float(depth[valid].min()) * 0.95, float(depth[valid].max()) * 1.05
+        E = np.eye(4)
+        E[:3, :3], E[:3, 3] = cam.R, cam.t
+        write_cam(out / "cams" / f"{stem}_cam.txt",
+                  MVSNetCam(E, cam.K, dmin, dmax, (dmax - dmin) / 191, 192))
+        all_pts.append(pts[valid])
+        all_rgb.append(image[valid])
+    write_pair(out / "pair.txt", _pairs(np.stack([c.center for c in scene.cameras]), min(10, num_views - 1)))
+    pts, rgb = np.concatenate(all_pts), np.concatenate(all_rgb)
+    if len(pts) > gt_points:
+        keep = np.random.default_rng(seed).choice(len(pts), gt_points, replace=False)
+        keep.sort()
+        pts, rgb = pts[keep], rgb[keep]
+    write_ply(out / "gt_surface.ply", pts.astype(np.float32), rgb)
+    atomic_write_text(out / "scene.json", json.dumps(
+        {"seed": seed, "num_views": num_views, "height": height, "width": width,
+         "surfaces": [type(s.shape).__name__ + ":" + s.texture for s in scene.surfaces]}, indent=2))
+    return out
+
+
+def generate_dataset(out_dir: str | Path, num_scenes: int, seed: int = 0, **kwargs) -> Path:
+    """Many scenes, ``scene_0000/`` ... in the MVSNet layout, plus ``scenes.txt`` listing them."""
+    out = Path(out_dir)
+    names = []
+    for k in range(num_scenes):
+        name = f"scene_{k:04d}"
+        generate_scene(out / name, seed=seed + 1000 * k, **kwargs)
+        names.append(name)
+    atomic_write_text(out / "scenes.txt", "\n".join(names) + "\n")
+    return out

@@ -1,0 +1,112 @@
+"""Checkpoint loading: official layouts, pickled foreign objects, DINOv2 backbone files, safetensors."""
+
+import subprocess
+import sys
+import textwrap
+
+import pytest
+import torch
+
+import mvsformerpp
+from mvsformerpp.errors import InputError
+from mvsformerpp.models import build_model, load_checkpoint, load_model, save_checkpoint
+from mvsformerpp.models.checkpoint import convert_state_dict
+
+
+@pytest.fixture(scope="module")
+def lite():
+    torch.manual_seed(0)
+    return build_model("lite")
+
+
+def _perturbed(model):
+    return {k: (v + 1 if v.is_floating_point() else v) for k, v in model.state_dict().items()}
+
+
+def test_convert_state_dict_handles_official_wrappers():
+    t = torch.zeros(2)
+    official = {"state_dict": {"module.encoder.x": t, "module.FMT_module.FMT.pos_encoding.pe_dict.8-10": t},
+                "epoch": 3}
+    assert list(convert_state_dict(official)) == ["encoder.x"]
+    assert list(convert_state_dict({"blocks.0.norm1.weight": t, "pos_embed": t})) == [
+        "vit.blocks.0.norm1.weight", "vit.pos_embed"]
+    with pytest.raises(ValueError):
+        convert_state_dict({"state_dict": {"a": 1}})
+
+
+def test_official_checkpoint_with_ddp_prefix_and_pickled_config(tmp_path, lite):
+    """The reference trainer pickles its config object; it must load without that class being importable."""
+    target = _perturbed(lite)
+    moddir = tmp_path / "mods"
+    moddir.mkdir()
+    (moddir / "parse_config.py").write_text(textwrap.dedent("""
+        class ConfigParser:
+            def __init__(self):
+                self.config = {"arch": {"args": {"ndepths": [32, 16, 8, 4]}}}
+    """))
+    path = tmp_path / "model_best.pth"
+    script = textwrap.dedent(f"""
+        import sys, torch
+        sys.path.insert(0, {str(moddir)!r})
+        from parse_config import ConfigParser
+        sd = torch.load({str(tmp_path / 'sd.pt')!r})
+        ckpt = {{"arch": "DINOv2MVSNet", "epoch": 9, "config": ConfigParser(),
+                 "state_dict": {{"module." + k: v for k, v in sd.items()}}}}
+        ckpt["state_dict"]["module.FMT_module.FMT.pos_encoding.pe_dict.8-10"] = torch.zeros(1)
+        torch.save(ckpt, {str(path)!r})
+    """)
+    torch.save(target, tmp_path / "sd.pt")
+    subprocess.run([sys.executable, "-c", script], check=True)
+    model = build_model("lite")
+    load_checkpoint(model, path)
+    for k, v in model.state_dict().items():
+        assert torch.equal(v, target[k]), k
+    assert "parse_config" not in sys.modules  # nothing foreign was imported
+
+
+def test_dinov2_backbone_file_loads_into_vit_only(tmp_path, lite):
+    model = build_model("lite")
+    before = {k: v.clone() for k, v in model.state_dict().items()}
+    backbone = {k[len("vit."):]: v + 2 for k, v in lite.state_dict().items() if k.startswith("vit.")}
+    torch.save(backbone, tmp_path / "dinov2.pth")
+    load_checkpoint(model, tmp_path / "dinov2.pth")
+    for k, v in model.state_dict().items():
+        if k.startswith("vit."):
+            assert torch.equal(v, backbone[k[4:]])
+        else:
+            assert torch.equal(v, before[k])
+
+
+def test_safetensors_round_trip_with_config(tmp_path, lite):
+    path = save_checkpoint(lite, tmp_path / "w.safetensors")
+    again = load_model(path)
+    assert again.config == lite.config
+    for k, v in lite.state_dict().items():
+        assert torch.equal(again.state_dict()[k], v)
+    fresh = load_checkpoint(build_model("lite"), path)
+    key = "encoder.conv00.conv.weight"
+    assert torch.equal(fresh.state_dict()[key], lite.state_dict()[key])
+
+
+def test_mismatched_checkpoint_lists_keys(tmp_path, lite):
+    save_checkpoint(lite, tmp_path / "lite.safetensors")
+    with pytest.raises(InputError, match="does not match.*shape mismatches.*vit"):
+        load_checkpoint(build_model("lite", vit_dim=96, vit_heads=2, sva_heads=2), tmp_path / "lite.safetensors")
+    sd = lite.state_dict()
+    sd.pop("encoder.conv00.conv.weight")
+    sd["extra.weight"] = torch.zeros(1)
+    torch.save(sd, tmp_path / "bad.pth")
+    with pytest.raises(InputError, match="missing keys: encoder.conv00.conv.weight.*unexpected keys: extra.weight"):
+        load_checkpoint(build_model("lite"), tmp_path / "bad.pth")
+    (tmp_path / "junk.pth").write_bytes(b"not a checkpoint")
+    with pytest.raises(InputError, match="cannot read"):
+        load_checkpoint(build_model("lite"), tmp_path / "junk.pth")
+    with pytest.raises(InputError, match="not found"):
+        load_checkpoint(build_model("lite"), tmp_path / "none.pth")
+
+
+def test_package_exports_are_lazy():
+    code = "import sys, mvsformerpp; assert 'torch' not in sys.modules; mvsformerpp.build_model; print('ok')"
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
+    assert out.stdout.strip() == "ok", out.stderr
+    assert mvsformerpp.build_model is build_model

@@ -1,0 +1,212 @@
+"""Network pieces checked against independent evidence (formulas, invariants, brute force)."""
+
+import math
+
+import pytest
+import torch
+
+from mvsformerpp.models import build_model
+from mvsformerpp.models.attention import linear_attention, softmax_attention
+from mvsformerpp.models.cvt import adaptive_attention_scale, frustum_coordinates, sine_encoding_3d
+from mvsformerpp.models.dinov2 import DinoVisionTransformer
+from mvsformerpp.models.fmt import sine_position_encoding_2d
+from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
+from mvsformerpp.models.loss import stage_ce_loss
+
+
+def test_linear_attention_matches_its_quadratic_formula():
+    torch.manual_seed(0)
+    q, k, v = torch.randn(2, 7, 3, 5), torch.randn(2, 9, 3, 5), torch.randn(2, 9, 3, 5)
+    phi_q, phi_k = torch.nn.functional.elu(q) + 1, torch.nn.functional.elu(k) + 1
+    # Explicit similarity matrix sim[b,h,i,j] = phi(q_i) . phi(k_j), rows normalised.
+    sim = torch.einsum("bihd,bjhd->bhij", phi_q, phi_k)
+    expected = torch.einsum("bhij,bjhd->bihd", sim / (sim.sum(-1, keepdim=True) + 1e-6), v)
+    torch.testing.assert_close(linear_attention(q, k, v), expected, rtol=1e-5, atol=1e-6)
+
+
+@pytest.mark.parametrize("scale", [None, 0.37])
+def test_softmax_backends_agree(scale):
+    torch.manual_seed(1)
+    q, k, v = (torch.randn(2, 4, 50, 16) for _ in range(3))
+    ref = softmax_attention(q, k, v, scale, backend="eager")
+    torch.testing.assert_close(softmax_attention(q, k, v, scale, backend="sdpa"), ref, rtol=1e-5, atol=1e-5)
+    torch.testing.assert_close(softmax_attention(q, k, v, scale, backend="auto"), ref, rtol=1e-5, atol=1e-5)
+    with pytest.raises(RuntimeError, match="flash"):  # CPU fp32: flash cannot run and says so
+        softmax_attention(q, k, v, scale, backend="flash")
+    with pytest.raises(ValueError, match="backend"):
+        softmax_attention(q, k, v, scale, backend="nope")
+
+
+def test_model_outputs_identical_under_eager_and_sdpa():
+    torch.manual_seed(0)
+    model = build_model("lite").eval()
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    with torch.no_grad():
+        a = model(imgs, proj, dv)["depth"]
+        model.set_attention_backend("eager")
+        b = model(imgs, proj, dv)["depth"]
+    torch.testing.assert_close(a, b, rtol=1e-4, atol=1e-3)
+
+
+def test_adaptive_attention_scale_keeps_entropy_stable_across_lengths():
+    """Attention entropy grows with the sequence length L under a fixed scale; AAS holds it nearly constant.
+
+    Random queries/keys with some structure (logit std ~4, so each query attends to a few keys),
+    n_train = 1024; lengths 4x below and above it.
+    """
+    d = 16
+
+    def mean_entropy(L, scale):
+        torch.manual_seed(0)
+        q, k = 2 * torch.randn(4, 1, L, d), 2 * torch.randn(4, 1, L, d)
+        p = torch.softmax(scale * q @ k.transpose(-1, -2), dim=-1)
+        return float(-(p * torch.log(p + 1e-12)).sum(-1).mean())
+
+    lengths = (256, 1024, 4096)
+    fixed = [mean_entropy(L, d ** -0.5) for L in lengths]
+    aas = [mean_entropy(L, adaptive_attention_scale(d, L, 1024)) for L in lengths]
+    assert max(fixed) - min(fixed) > 1.0  # the problem AAS addresses
+    assert max(aas) - min(aas) < 0.1 * (max(fixed) - min(fixed))
+    assert adaptive_attention_scale(16, 12185) == pytest.approx(0.25)
+    assert adaptive_attention_scale(16, 64 * 80) == pytest.approx(0.2270, abs=1e-4)  # 512x640, spec 6.1
+    assert adaptive_attention_scale(16, 144 * 192) == pytest.approx(0.2718, abs=1e-4)  # 1152x1536
+
+
+def test_frustoconical_coordinates_in_unit_cube_and_encoding_range():
+    K = torch.tensor([[[100.0, 0, 40], [0, 100.0, 32], [0, 0, 1]]])
+    hyp = initial_hypotheses(torch.tensor([[425.0, 931.0]]), 32, 8, 10)
+    c = frustum_coordinates(K, hyp, torch.tensor(425.0), torch.tensor(931.0))
+    assert c.shape == (1, 3, 32, 8, 10)
+    assert c.min() >= 0 and c.max() <= 1
+    assert c[:, 0].max() > 0.99 and c[:, 2].min() < 1e-3  # min-max normalised: the range is used
+    pe = sine_encoding_3d(c, 8)
+    assert pe.shape == (1, 24, 32, 8, 10) and pe.abs().max() <= 1
+
+
+def test_2d_position_encoding_is_resolution_normalised():
+    a, b = sine_position_encoding_2d(64, 16, 20), sine_position_encoding_2d(64, 32, 40)
+    # Positions span (0, 128] at any size: the last pixel encodes 128 in both.
+    torch.testing.assert_close(a[..., -1, -1], b[..., -1, -1])
+    torch.testing.assert_close(a[..., 0, 0], b[..., 1, 1])  # (i+1)*128/16 == (2i+2)*128/32
+    x = torch.ones(1, 1, 1) * 128 / 20 * 3  # column 2 of the 20-wide map
+    torch.testing.assert_close(a[0, 0, 5, 2], torch.sin(x)[0, 0, 0])  # channel 0 = sin(x * w_0), w_0 = 1
+    torch.testing.assert_close(a[0, 3, 5, 2], torch.cos(torch.tensor(128 / 16 * 6.0)))
+
+
+def test_dinov2_tap_blocks_and_pos_embed_interpolation():
+    vit = DinoVisionTransformer(embed_dim=24, depth=12, num_heads=2)
+    assert vit.tap_blocks() == [3, 7, 11]
+    assert DinoVisionTransformer(embed_dim=24, depth=6, num_heads=2).tap_blocks() == [1, 3, 5]
+    assert vit.interpolate_pos_embed(37, 37) is vit.pos_embed  # native grid: untouched
+    pe = vit.interpolate_pos_embed(16, 20)
+    assert pe.shape == (1, 16 * 20 + 1, 24)
+    torch.testing.assert_close(pe[:, 0], vit.pos_embed[:, 0])  # the cls embedding is kept
+    taps = vit.forward_taps(torch.randn(2, 3, 16 * 14, 20 * 14))
+    assert len(taps) == 3 and all(t.shape == (2, 320, 24) for t in taps)
+
+
+def test_hypotheses_inverse_uniform_far_to_near_and_positive_for_wide_ranges():
+    dv = torch.tensor([[1.0, 100.0]])
+    h = initial_hypotheses(dv, 32, 2, 3)
+    assert h[0, 0, 0, 0] == pytest.approx(100.0) and h[0, -1, 0, 0] == pytest.approx(1.0)
+    inv = 1 / h[0, :, 0, 0]
+    torch.testing.assert_close(inv[1:] - inv[:-1], torch.full((31,), float(inv[1] - inv[0])))
+    # A far estimate with a wide range would push the reference's inverse window below zero (14.7).
+    depth = torch.full((1, 2, 3), 90.0)
+    unclamped = refined_hypotheses(depth, h, 16, 2.67, 4, 6)
+    assert (unclamped <= 0).any()
+    clamped = refined_hypotheses(depth, h, 16, 2.67, 4, 6, min_inverse=0.1 / dv[:, -1])
+    assert (clamped > 0).all() and torch.isfinite(clamped).all()
+    # Ordinary ranges are untouched by the bound.
+    near = torch.full((1, 2, 3), 5.0)
+    torch.testing.assert_close(refined_hypotheses(near, h, 16, 2.67, 4, 6),
+                               refined_hypotheses(near, h, 16, 2.67, 4, 6, min_inverse=0.1 / dv[:, -1]))
+
+
+def test_loss_bins_and_empty_stage():
+    hyp = torch.tensor([4.0, 3.0, 2.0, 1.0]).reshape(1, 4, 1, 1).repeat(1, 1, 1, 3)
+    logits = torch.zeros(1, 4, 1, 3, requires_grad=True)
+    # GT 1.2 -> bin of depth 1 (ascending index 0), 2.6 -> depth 3 (index 2); uniform logits: loss = ln 4.
+    gt = torch.tensor([[[1.2, 2.6, 9.0]]])
+    loss = stage_ce_loss(logits, hyp, gt, torch.ones(1, 1, 3))
+    assert loss.item() == pytest.approx(math.log(4))
+    # Out-of-range and masked pixels are ignored; with none valid the loss is 0 (not NaN) and differentiable.
+    empty = stage_ce_loss(logits, hyp, gt, torch.zeros(1, 1, 3))
+    assert empty.item() == 0.0
+    empty.backward()
+    assert torch.isfinite(logits.grad).all()
+    peaked = torch.full((1, 4, 1, 1), -10.0)
+    peaked[0, 1] = 10.0  # descending index 1 = depth 3 = ascending index 2
+    low = stage_ce_loss(peaked, hyp[..., :1], torch.tensor([[[2.6]]]), torch.ones(1, 1, 1))
+    assert low.item() < 1e-6
+
+
+def _random_batch(B, V, H, W):
+    torch.manual_seed(3)
+    imgs = torch.randn(B, V, 3, H, W)
+    E = torch.eye(4).repeat(B, V, 1, 1)
+    E[:, :, 0, 3] = torch.arange(V).float() * 10.0  # a baseline along x
+    proj = {}
+    for s, f in enumerate((8, 4, 2, 1)):
+        P = torch.zeros(B, V, 2, 4, 4)
+        P[:, :, 0] = E
+        P[:, :, 1, :3, :3] = torch.tensor([[W * 1.2 / f, 0, W / 2 / f], [0, W * 1.2 / f, H / 2 / f], [0, 0, 1]])
+        P[:, :, 1, 3, 3] = 1
+        proj[f"stage{s + 1}"] = P
+    return imgs, proj, torch.tensor([[400.0, 900.0]]).repeat(B, 1)
+
+
+def test_training_step_gives_every_trainable_parameter_a_gradient():
+    from mvsformerpp.models.loss import cascade_loss
+
+    model = build_model("lite").train()
+    imgs, proj, dv = _random_batch(2, 3, 64, 64)
+    out = model(imgs, proj, dv)
+    gt = {f"stage{s + 1}": torch.full((2, 64 // f, 64 // f), 600.0) for s, f in enumerate((8, 4, 2, 1))}
+    masks = {k: torch.ones_like(v) for k, v in gt.items()}
+    total, _ = cascade_loss(out, gt, masks)
+    total.backward()
+    missing = [
+        n for n, p in model.named_parameters() if p.requires_grad and (p.grad is None or p.grad.abs().sum() == 0)
+    ]
+    assert not missing, missing
+
+    paper = build_model("paper").train()
+    assert not any(p.requires_grad for p in paper.vit.parameters())
+    out = paper(imgs[:1], {k: v[:1] for k, v in proj.items()}, dv[:1])
+    total, _ = cascade_loss(out, {k: v[:1] for k, v in gt.items()}, {k: v[:1] for k, v in masks.items()})
+    total.backward()
+    assert all(p.grad is None for p in paper.vit.parameters())
+    trainable = [n for n, p in paper.named_parameters() if p.requires_grad]
+    assert all(paper.get_parameter(n).grad is not None for n in trainable)
+
+
+def test_outputs_have_documented_shapes_and_sizes_must_be_multiples_of_32():
+    model = build_model("lite").eval()
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    with torch.no_grad():
+        out = model(imgs, proj, dv)
+    assert out["depth"].shape == (1, 64, 96) and out["photometric_confidence"].shape == (1, 64, 96)
+    for s, (d, f) in enumerate(zip((32, 16, 8, 4), (8, 4, 2, 1))):
+        st = out[f"stage{s + 1}"]
+        assert st["prob_volume_pre"].shape == (1, d, 64 // f, 96 // f)
+        assert st["depth_values"].shape == (1, d, 64 // f, 96 // f)
+    assert ((out["depth"] >= 399) & (out["depth"] <= 901)).all()
+    assert ((out["photometric_confidence"] > 0) & (out["photometric_confidence"] <= 1)).all()
+    with pytest.raises(ValueError, match="multiple of 32"):
+        model(imgs[..., :60, :], proj, dv)
+
+
+def test_bf16_autocast_keeps_fp32_islands_and_close_results():
+    """Under CPU bf16 autocast the cost volume, linear attention and depth head stay fp32 (the reference's
+    CUDA-only autocast guards do not do that on CPU): outputs are fp32 and close to the fp32 run."""
+    model = build_model("lite").eval()
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    with torch.no_grad():
+        ref = model(imgs, proj, dv)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = model(imgs, proj, dv)
+    assert out["depth"].dtype == torch.float32
+    assert out["stage4"]["depth_values"].dtype == torch.float32
+    rel = (out["depth"] - ref["depth"]).abs() / ref["depth"]
+    assert rel.median() < 1e-3 and rel.max() < 0.05
