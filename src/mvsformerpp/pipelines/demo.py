@@ -11,7 +11,7 @@ from pathlib import Path
 
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
-# The lite network at half the photos' size (320x240; about a minute on a 2-core CPU), five views per depth map.
+# The lite network at half the photos' size (320x240; about two minutes on a 2-core CPU), five views per depth map.
 DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion="normal")
 
 
