@@ -274,10 +274,8 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     if config.fusion != "none":
         fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
         if not folder.fusion_done(fusion_state):
-            from mvsformerpp.pipelines.fuse import fuse
-
             with disk_full_guard(ply):
-                fuse(folder.root, ply, _fusion_config(config.fusion), quiet=quiet)
+                _run_fusion(folder.root, ply, config.fusion, quiet)
             folder.mark_fusion(fusion_state)
         from mvsformerpp.io.ply import ply_points, read_ply
 
@@ -310,6 +308,17 @@ def _device(name: str) -> torch.device:
 
 
 def _fusion_config(name: str):
+    """The named fusion configuration of :mod:`mvsformerpp.fusion` (the name itself if it has no registry)."""
     from mvsformerpp import fusion
 
-    return fusion.get_config(name)
+    get = getattr(fusion, "get_config", None)
+    return get(name) if callable(get) else name
+
+
+def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool) -> None:
+    import inspect
+
+    from mvsformerpp.pipelines.fuse import fuse
+
+    kwargs = {"quiet": quiet} if "quiet" in inspect.signature(fuse).parameters else {}
+    fuse(folder, ply, _fusion_config(name), **kwargs)
