@@ -77,7 +77,8 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
     if len(xyz) == 0:
         warnings.warn(
             "fusion kept no point: the depth maps disagree everywhere or all confidences are below "
-            f"{config.conf_threshold} (try --conf lower, --num-consistent 1 or --fusion dynamic); "
+            f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
+            "--num-consistent 1 or --fusion dynamic); "
             "writing an empty point cloud", stacklevel=2)
     write_ply(out_ply, xyz, rgb)
     if not quiet:
