@@ -210,3 +210,57 @@ def test_bf16_autocast_keeps_fp32_islands_and_close_results():
     assert out["stage4"]["depth_values"].dtype == torch.float32
     rel = (out["depth"] - ref["depth"]).abs() / ref["depth"]
     assert rel.median() < 1e-3 and rel.max() < 0.05
+
+
+def _randomise_batchnorm(model, seed=5):
+    """Non-trivial eval statistics, so that folding BatchNorm into convolutions is really exercised."""
+    g = torch.Generator().manual_seed(seed)
+    for m in model.modules():
+        if isinstance(m, torch.nn.modules.batchnorm._BatchNorm):
+            n = m.num_features
+            m.running_mean.copy_(torch.rand(n, generator=g) - 0.5)
+            m.running_var.copy_(torch.rand(n, generator=g) + 0.5)
+            m.weight.data.copy_(torch.rand(n, generator=g) + 0.5)
+            m.bias.data.copy_(torch.rand(n, generator=g) - 0.5)
+
+
+def test_inference_fast_paths_match_the_plain_modules():
+    """Without autograd, eval runs rewritten paths (BatchNorm folded into convolutions, depth-banded 2-D
+    convolutions for the 3-D U-Nets, the last FPN level in row bands, in-place buffers, features freed
+    as soon as they are used); with autograd the plain module composition runs. Both must agree, at
+    an odd size and with bands small enough that the full-resolution level takes several of them."""
+    from mvsformerpp.models import fpn
+
+    model = build_model("lite").eval()
+    _randomise_batchnorm(model)
+    imgs, proj, dv = _random_batch(1, 3, 96, 160)
+    plain = model(imgs, proj, dv)  # grad enabled: the reference composition
+    default = fpn.FPNDecoder._last_level_inference.__defaults__
+    fpn.FPNDecoder._last_level_inference.__defaults__ = (4 * 72 * 160 * 8,)  # bands of 8 rows
+    try:
+        with torch.no_grad():
+            fast = model(imgs, proj, dv)
+    finally:
+        fpn.FPNDecoder._last_level_inference.__defaults__ = default
+    for s in range(1, 5):
+        a, b = fast[f"stage{s}"]["prob_volume_pre"], plain[f"stage{s}"]["prob_volume_pre"].detach()
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-4 * b.abs().max().item()), s
+    assert torch.allclose(fast["depth"], plain["depth"].detach(), rtol=1e-5)
+    assert torch.allclose(fast["photometric_confidence"], plain["photometric_confidence"].detach(), atol=1e-5)
+
+
+def test_banded_decoder_level_matches_upsample_then_convolve():
+    """The row-banded last FPN level equals out3(up2(t2) + inner3(conv01)) for every band layout,
+    including bands of a few rows and a last band that is shorter than the others."""
+    from mvsformerpp.models.fpn import FPNDecoder
+
+    torch.manual_seed(0)
+    dec = FPNDecoder().eval()
+    _randomise_batchnorm(dec)
+    t2, conv01 = torch.randn(2, 64, 9, 13), torch.randn(2, 8, 18, 26)
+    ref = dec.out3(torch.nn.functional.interpolate(t2, scale_factor=2, mode="bilinear", align_corners=True)
+                   + dec.inner3(conv01)).detach()
+    with torch.no_grad():
+        for rows in (4, 5, 18, 64):
+            out = dec._last_level_inference(t2, conv01, band_bytes=4 * 72 * 26 * rows)
+            assert torch.allclose(out, ref, atol=1e-5), rows

@@ -11,16 +11,17 @@ from torch.utils.checkpoint import checkpoint
 
 from mvsformerpp.geometry.warping import homography_warp, projection_4x4
 from mvsformerpp.models.cvt import CostVolumeTransformer
-from mvsformerpp.models.layers import ConvBnReLU
+from mvsformerpp.models.layers import ConvBnReLU, fold_batchnorm
 from mvsformerpp.models.regularization import CostRegNet, CostRegNet3D
 
 
-def group_correlation(ref: torch.Tensor, warped: torch.Tensor, groups: int) -> torch.Tensor:
-    """Mean over each channel group of ref * warped: [B,C,H,W] x [B,C,D,H,W] -> [B,G,D,H,W]."""
+def group_correlation(ref: torch.Tensor, warped: torch.Tensor, groups: int, out: torch.Tensor | None = None):
+    """Mean over each channel group of ref * warped: [B,C,H,W] x [B,C,D,H,W] -> [B,G,D,H,W] (into out)."""
     B, C, D, H, W = warped.shape
     if groups == C:
-        return ref[:, :, None] * warped
-    return (ref.reshape(B, groups, C // groups, 1, H, W) * warped.reshape(B, groups, C // groups, D, H, W)).mean(2)
+        return torch.mul(ref[:, :, None], warped, out=out)
+    prod = ref.reshape(B, groups, C // groups, 1, H, W) * warped.reshape(B, groups, C // groups, D, H, W)
+    return torch.mean(prod, 2, out=out)
 
 
 def matching_entropy(corr: torch.Tensor) -> torch.Tensor:
@@ -49,17 +50,17 @@ def depth_from_logits(logits: torch.Tensor, hypotheses: torch.Tensor, temperatur
 
 
 def visibility(vis: nn.Sequential, entropy: torch.Tensor) -> torch.Tensor:
-    """Run the visibility net; in inference with channels-last weights, which oneDNN runs about twice
-    as fast on these thin full-resolution maps (same numbers up to float rounding)."""
-    if vis.training:
+    """Run the visibility net. In inference without autograd, each conv-BatchNorm-ReLU is one
+    convolution with the BatchNorm folded in and an in-place ReLU, on channels-last maps, which oneDNN
+    runs about twice as fast at these thin full-resolution sizes (same numbers up to float rounding)."""
+    if vis.training or torch.is_grad_enabled():
         return vis(entropy)
     cl = torch.channels_last
     x = entropy
     for layer in vis[:3]:
-        x = F.conv2d(x, layer.conv.weight.contiguous(memory_format=cl), padding=1).contiguous(memory_format=cl)
-        x = F.relu(F.batch_norm(x, layer.bn.running_mean, layer.bn.running_var, layer.bn.weight, layer.bn.bias,
-                                False, 0.0, layer.bn.eps))
-    return torch.sigmoid(vis[3](x)).contiguous()
+        w, b = fold_batchnorm(layer.conv.weight, layer.bn)
+        x = F.conv2d(x.contiguous(memory_format=cl), w.contiguous(memory_format=cl), b, padding=1).relu_()
+    return vis[3](x).sigmoid_().contiguous()
 
 
 class StageNet(nn.Module):
@@ -85,25 +86,37 @@ class StageNet(nn.Module):
             D = hypotheses.shape[1]
             # Hypotheses in chunks bound the warped-feature memory (full resolution: ~0.25 GB per view).
             step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
-            volume_sum, vis_sum = None, 0.0
+            inplace = not torch.is_grad_enabled()  # inference: reuse buffers, no autograd to keep
+            volume_sum, vis_sum, spare = None, 0.0, None
             for v in range(1, features.shape[1]):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())
                 src = features[:, v].float()
-                corr = ref.new_empty(B, self.groups, D, H, W)
+                corr = spare if spare is not None else ref.new_empty(B, self.groups, D, H, W)
                 for d in range(0, D, step):
                     warped = homography_warp(src, src_proj, ref_proj, hypotheses[:, d:d + step])
-                    corr[:, :, d:d + step] = group_correlation(ref, warped, self.groups)
+                    if inplace:
+                        group_correlation(ref, warped, self.groups, out=corr[:, :, d:d + step])
+                    else:
+                        corr[:, :, d:d + step] = group_correlation(ref, warped, self.groups)
                     del warped
                 weight = visibility(self.vis, matching_entropy(corr))  # [B,1,H,W]
                 if volume_sum is None:
-                    volume_sum = corr * weight[:, None]
+                    volume_sum = corr.mul_(weight[:, None]) if inplace else corr * weight[:, None]
                 else:
                     volume_sum.addcmul_(corr, weight[:, None])
+                    spare = corr if inplace else None
                 vis_sum = vis_sum + weight
+                del corr
+            if inplace:
+                return volume_sum.div_(vis_sum[:, None].add_(1e-6))
             return volume_sum / (vis_sum[:, None] + 1e-6)
 
     def forward(self, features, proj, hypotheses, temperature: float | None, coords=None) -> dict:
-        volume = self.cost_volume(features, proj, hypotheses)
+        return self.predict(self.cost_volume(features, proj, hypotheses), hypotheses, temperature, coords)
+
+    def predict(self, volume: torch.Tensor, hypotheses: torch.Tensor, temperature: float | None,
+                coords=None) -> dict:
+        """Regularise a cost volume [B,G,D,H,W] into logits and read out depth and confidence."""
         if isinstance(self.cost_reg, CostVolumeTransformer):
             logits = self.cost_reg(volume, coords)
         elif self.training and torch.is_grad_enabled():

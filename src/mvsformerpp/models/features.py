@@ -49,11 +49,11 @@ class ImageFeatures:
         return sum(t.numel() * t.element_size() for t in [*self.vit_taps, *self.fpn])
 
 
-def per_image(fn, count: int, *inputs: torch.Tensor) -> list[torch.Tensor]:
+def per_image(fn, count: int, *inputs: torch.Tensor, out: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
     """fn over images one at a time (inputs sliced along dim 0), outputs written into preallocated
     tensors: the same result as fn on the whole batch (in eval), with a per-image working set and
-    no concatenation copies."""
-    outs = None
+    no concatenation copies. ``out`` may be inputs themselves (image i is read before it is written)."""
+    outs = out
     for i in range(count):
         res = fn(*(x[i:i + 1] for x in inputs))
         if outs is None:
@@ -89,14 +89,12 @@ def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.T
     return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), fpn)
 
 
-def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt: FMTWithPathway,
-                       feats: ImageFeatures, B: int, V: int) -> list[torch.Tensor]:
-    """Fuse the views of each sample: SVA on DINOv2 tokens, add to conv31, FPN decoder, FMT + pathway.
-
-    ``feats`` holds B*V images in batch-major order (view 0 of each sample is its reference).
-    Returns 4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1). Every sample uses its own
-    DINOv2 features (the reference gives all samples sample 0's in eval mode, spec 14.1).
-    """
+def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: ImageFeatures, B: int,
+                 V: int) -> list[torch.Tensor]:
+    """SVA on the DINOv2 tokens of each sample's views, added to conv31, then the FPN decoder:
+    4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1). ``feats`` holds B*V images in
+    batch-major order (view 0 of each sample is its reference). Every sample uses its own DINOv2
+    features (the reference gives all samples sample 0's in eval mode, spec 14.1)."""
     taps = [t.reshape(B, V, *t.shape[1:]) for t in feats.vit_taps]
     vit_feat = decoder_vit(taps, feats.vit_hw)  # [B*V, 64, 4h, 4w]
     conv01, conv11, conv21, conv31 = feats.fpn
@@ -107,5 +105,13 @@ def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt:
         stages = decoder(conv01, conv11, conv21, conv31)
     else:  # image by image: the same result (running statistics) with a much smaller working set
         stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)
-    stages = [s.reshape(B, V, *s.shape[1:]) for s in stages]
-    return fmt(stages)
+    return [s.reshape(B, V, *s.shape[1:]) for s in stages]
+
+
+def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt: FMTWithPathway,
+                       feats: ImageFeatures, B: int, V: int) -> list[torch.Tensor]:
+    """Fuse the views of each sample: :func:`decode_views`, then FMT + pathway (spec 1-3).
+
+    Returns 4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1).
+    """
+    return fmt(decode_views(decoder_vit, decoder, feats, B, V))

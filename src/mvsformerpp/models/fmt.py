@@ -104,7 +104,10 @@ class FMTWithPathway(nn.Module):
         return s2, s3, s4
 
     def forward(self, features: list[torch.Tensor]) -> list[torch.Tensor]:
-        """features: 4 tensors [B, V, C_s, H_s, W_s] -> the same shapes, refined."""
+        """features: 4 tensors [B, V, C_s, H_s, W_s] -> the same shapes, refined.
+
+        Without autograd, the finer features are refined in place (their tensors are overwritten).
+        """
         f1, f2, f3, f4 = features
         B, V = f1.shape[:2]
         ref, src = self.FMT(f1[:, 0], f1[:, 1:].flatten(0, 1) if V > 1 else None)
@@ -113,8 +116,8 @@ class FMTWithPathway(nn.Module):
         f2, f3, f4 = f2.flatten(0, 1), f3.flatten(0, 1), f4.flatten(0, 1)
         if torch.is_grad_enabled():
             s2, s3, s4 = self.pathway(s1, f2, f3, f4)
-        else:  # image by image, into preallocated outputs: a much smaller working set
+        else:  # image by image, each result written over its input: a much smaller working set
             from mvsformerpp.models.features import per_image
 
-            s2, s3, s4 = per_image(self.pathway, len(s1), s1, f2, f3, f4)
+            s2, s3, s4 = per_image(self.pathway, len(s1), s1, f2, f3, f4, out=[f2, f3, f4])
         return [s.reshape(B, V, *s.shape[1:]) for s in (s1, s2, s3, s4)]

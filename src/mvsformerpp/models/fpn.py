@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models.layers import ConvBnLeakyReLU, Swish
+from mvsformerpp.models.layers import ConvBnLeakyReLU, Swish, fold_batchnorm
 
 
 class FPNEncoder(nn.Module):
@@ -64,25 +64,51 @@ class FPNDecoder(nn.Module):
         out1 = self.out1(t1)
         t2 = _up2(t1) + self.inner2(conv11)
         out2 = self.out2(t2)
-        if self.training:
+        if self.training or torch.is_grad_enabled():
             out3 = self.out3(_up2(t2) + self.inner3(conv01))
         else:
-            out3 = self.out3[2](self.out3[1](self._last_level_conv(t2, conv01)))
+            out3 = self._last_level_inference(t2, conv01)
         return [out0, out1, out2, out3]
 
-    def _last_level_conv(self, t2: torch.Tensor, conv01: torch.Tensor) -> torch.Tensor:
-        """Conv3x3(up2(t2) + inner3(conv01)) without the 64-channel full-resolution sum.
+    def _last_level_inference(self, t2: torch.Tensor, conv01: torch.Tensor, band_bytes: int = 1 << 23):
+        """out3(up2(t2) + inner3(conv01)) in row bands, without any 64-channel full-resolution map.
 
-        By linearity it is Conv3x3(up2(t2)) + Conv3x3'(conv01) + B, where Conv3x3' = Conv3x3 o inner3
-        (a 3x3 conv from c0 to c0 channels) and B is inner3's bias seen through the zero-padded 3x3
-        conv (constant inside, smaller at the border). The same numbers up to float rounding, about
-        half the memory traffic at full resolution.
+        By linearity, Conv3x3(up2(t2) + inner3(conv01)) = Conv3x3(up2(t2) + b_inner) + Conv3x3'(conv01)
+        with Conv3x3' = Conv3x3 o inner3 (c0 -> c0 channels), both zero-padded at the image border: one
+        convolution over the channel concatenation [up2(t2) + b_inner, conv01]. The eval BatchNorm is
+        folded into it and Swish runs in place. Each band of output rows needs its input rows and one
+        halo row either side; the upsampling of those rows is computed directly (separable bilinear,
+        align_corners=True). The same numbers up to float rounding, a bounded working set.
         """
-        conv, inner = self.out3[0], self.inner3
+        conv, bn, inner = self.out3[0], self.out3[1], self.inner3
         w_fold = torch.einsum("ocij,ck->okij", conv.weight, inner.weight[:, :, 0, 0])
-        w_bias = torch.einsum("ocij,c->oij", conv.weight, inner.bias)[:, None]
-        ones = conv01.new_ones(1, 1, *conv01.shape[-2:])
-        bias_map = F.conv2d(ones, w_bias, padding=1)
-        # Channels-last for the one 64-channel full-resolution convolution: faster in oneDNN.
-        up = _up2(t2.contiguous(memory_format=torch.channels_last))
-        return conv(up).contiguous() + F.conv2d(conv01, w_fold, padding=1) + bias_map
+        w, b = fold_batchnorm(torch.cat([conv.weight, w_fold], 1), bn, bias=conv.bias)
+        cl = torch.channels_last  # oneDNN runs this thin full-resolution convolution fastest in NHWC
+        w = w.contiguous(memory_format=cl)
+        t2 = t2.float().permute(0, 2, 3, 1).contiguous()  # NHWC rows: cheap to gather and interpolate
+        N, _, H, W = conv01.shape
+        out = conv01.new_empty(N, conv.out_channels, H, W, dtype=torch.float32)
+        rows = max(4, band_bytes // (4 * w.shape[1] * W))
+        for r0 in range(0, H, rows):
+            r1 = min(H, r0 + rows)
+            a, z = max(r0 - 1, 0), min(r1 + 1, H)
+            up = _up2_rows_nhwc(t2, a, z, H, W).add_(inner.bias.view(1, -1, 1, 1))
+            x = torch.cat([up, conv01[:, :, a:z].float().contiguous(memory_format=cl)], 1)
+            # zero padding is right at the image border; elsewhere the halo rows are real and the
+            # padded output rows are dropped
+            y = F.conv2d(x, w, b, padding=1)[:, :, r0 - a:r1 - a]
+            out[:, :, r0:r1] = y.mul_(torch.sigmoid(y))
+        return out
+
+
+def _up2_rows_nhwc(x: torch.Tensor, a: int, z: int, H: int, W: int) -> torch.Tensor:
+    """Rows a..z-1 of F.interpolate(x, (H, W), mode="bilinear", align_corners=True) for x given as
+    NHWC [N, h, w, C]; the result is [N, C, z-a, W] in channels-last memory."""
+    h = x.shape[1]
+    scale = (h - 1) / (H - 1) if H > 1 else 0.0
+    ys = torch.arange(a, z, dtype=torch.float32, device=x.device) * scale
+    y0 = ys.floor().long().clamp_(max=h - 1)
+    y1 = (y0 + 1).clamp_(max=h - 1)
+    fy = (ys - y0).view(-1, 1, 1)
+    rows = (x[:, y0] * (1 - fy)).add_(x[:, y1] * fy).permute(0, 3, 1, 2)
+    return F.interpolate(rows, (z - a, W), mode="bilinear", align_corners=True)

@@ -11,6 +11,19 @@ import torch.nn.functional as F
 from torch import nn
 
 
+def fold_batchnorm(weight: torch.Tensor, bn: nn.Module, transposed: bool = False, bias=None):
+    """(weight, bias) of a convolution (bias optional) followed by an eval-mode BatchNorm, as one convolution.
+
+    Inference only (the result is detached): eval BatchNorm is the affine map
+    y = (x - mean) * gamma / sqrt(var + eps) + beta, which scales each output channel of the weight.
+    """
+    scale = bn.weight.detach() / torch.sqrt(bn.running_var + bn.eps)
+    shift = bn.bias.detach() - bn.running_mean * scale
+    bias = shift if bias is None else shift + bias.detach() * scale
+    shape = ((1, -1) if transposed else (-1, 1)) + (1,) * (weight.dim() - 2)
+    return weight.detach() * scale.view(shape), bias
+
+
 class ConvBnLeakyReLU(nn.Module):
     """Conv2d (no bias) -> BatchNorm2d -> LeakyReLU(0.1): the FPN encoder block (spec 1)."""
 

@@ -10,7 +10,7 @@ from mvsformerpp.models.config import ModelConfig
 from mvsformerpp.models.cost_volume import StageNet
 from mvsformerpp.models.cvt import frustum_coordinates
 from mvsformerpp.models.dinov2 import DinoVisionTransformer
-from mvsformerpp.models.features import ImageFeatures, encode_images, multiview_features
+from mvsformerpp.models.features import ImageFeatures, decode_views, encode_images
 from mvsformerpp.models.fmt import FMTWithPathway
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
 from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
@@ -73,16 +73,20 @@ class MVSFormerPP(nn.Module):
         cfg = self.config
         if H % 32 or W % 32:
             raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
-        if image_features is None:
+        own = image_features is None
+        if own:
             image_features = self.encode_images(imgs.reshape(B * V, *imgs.shape[2:]))
-        features = multiview_features(self.decoder_vit, self.decoder, self.FMT_module, image_features, B, V)
+        features = decode_views(self.decoder_vit, self.decoder, image_features, B, V)
+        if own:
+            del image_features  # the encoder maps are not needed any more: free them before the FMT
+        features = self.FMT_module(features)
         temps = tuple(cfg.temperatures if temperatures is None else temperatures)
         dmin_all, dmax_all = depth_values.min(), depth_values.max()
         outputs: dict = {}
         conf_sum = torch.zeros(B, H, W, dtype=torch.float32, device=imgs.device)
         prev = None
         for s, stage in enumerate(self.fusions):
-            feat = features[s]
+            feat, features[s] = features[s], None  # each stage's features are freed after its cost volume
             h, w = feat.shape[-2:]
             proj = proj_matrices[f"stage{s + 1}"]
             if s == 0:
@@ -93,7 +97,10 @@ class MVSFormerPP(nn.Module):
                 hyp = refined_hypotheses(prev["depth"].detach(), prev["depth_values"], cfg.num_hypotheses[s],
                                          cfg.hypothesis_ratio[s], h, w, min_inverse=min_inv)
                 coords = None
-            prev = stage(feat, proj, hyp, None if self.training else temps[s], coords)
+            volume = stage.cost_volume(feat, proj, hyp)
+            del feat
+            prev = stage.predict(volume, hyp, None if self.training else temps[s], coords)
+            del volume
             outputs[f"stage{s + 1}"] = prev
             conf = prev["photometric_confidence"]
             if conf.shape[-2:] != (H, W):

@@ -3,9 +3,10 @@
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models.layers import ConvBnReLU3d, DeconvBnReLU3d
+from mvsformerpp.models.layers import ConvBnReLU3d, DeconvBnReLU3d, fold_batchnorm
 
 
 def _unet_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
@@ -36,6 +37,8 @@ class CostRegNet(nn.Module):
         self.prob = nn.Conv3d(base, 1, 3, padding=1, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        if _fast_path(self, x):
+            return _fast_forward_2(self, x)  # the same function, faster on CPU (see below)
         return _unet_forward(self, x)
 
 
@@ -65,72 +68,114 @@ class CostRegNet3D(nn.Module):
         self.prob = nn.Conv3d(base, 1, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if not self.training and x.device.type == "cpu":
+        if _fast_path(self, x):
             return _fast_forward_3d(self, x)  # the same function, faster on CPU (see below)
         return _unet_forward(self, x)
 
 
 # ------------------------------------------------------------------------------------------------
-# Inference fast path for the depth-preserving U-Net (stages 3-4, D = 8 or 4 hypotheses).
-# A 3-D convolution whose depth kernel is 3 (padding 1, stride 1 in depth) equals a 2-D convolution
-# over channels (c, d) with a depth-banded weight: W2[(o, d'), (c, d)] = W[o, c, d - d' + 1] for
-# |d - d'| <= 1. oneDNN runs these wider 2-D convolutions several times faster than the thin 3-D ones;
-# the result is the same up to float summation order.
+# Inference fast paths (CPU, eval). The same functions as the modules above, up to float rounding:
+# - eval BatchNorm is an affine map, folded into the preceding convolution's weight and bias, and
+#   ReLU and the U-Net's skip additions run in place, so every level allocates one tensor, not three;
+# - a 3-D convolution whose depth kernel is 3 (padding 1) equals a 2-D convolution over channels
+#   (c, d) with a depth-banded weight: W2[(o, d'), (c, d)] = W[o, c, d - d' + 1] for |d - d'| <= 1.
+#   oneDNN runs these wider 2-D convolutions several times faster than the thin 3-D ones (the stage-2
+#   logit head, with a single output channel, otherwise takes PyTorch's slow im2col path);
+# - the 1x1x1 logit head of stages 3-4 is one matrix product.
 
-_band_cache: dict = {}
-
-
-def _banded(weight: torch.Tensor, D: int, transposed: bool) -> torch.Tensor:
-    key = (weight.data_ptr(), weight._version, D, transposed, weight.device, weight.dtype)
-    if key not in _band_cache:
-        if len(_band_cache) > 64:
-            _band_cache.clear()
-        a, b, _, kh, kw = weight.shape  # conv: [out, in, 3, kh, kw]; transposed: [in, out, 3, kh, kw]
-        W2 = weight.new_zeros(a, D, b, D, kh, kw)
-        for d_out in range(D):
-            for k in range(3):
-                d_in = d_out + k - 1
-                if 0 <= d_in < D:
-                    if transposed:  # out[d'] += in[d] w[d' - d + 1]: index by (in=d, out=d')
-                        W2[:, d_in, :, d_out] = weight[:, :, 2 - k]
-                    else:
-                        W2[:, d_out, :, d_in] = weight[:, :, k]
-        _band_cache[key] = W2.reshape(a * D, b * D, kh, kw)
-    return _band_cache[key]
+_fold_cache: dict = {}
 
 
-def _conv3d_2d(x: torch.Tensor, conv: torch.nn.Conv3d) -> torch.Tensor:
+def _fast_path(net: nn.Module, x: torch.Tensor) -> bool:
+    return not net.training and not torch.is_grad_enabled() and x.device.type == "cpu"
+
+
+def _cache_key(*tensors: torch.Tensor, extra=()) -> tuple:
+    return tuple((t.data_ptr(), t._version, t.dtype, t.device) for t in tensors) + tuple(extra)
+
+
+def _band(weight: torch.Tensor, D: int, transposed: bool) -> torch.Tensor:
+    """Depth-banded 2-D weight of a depth-kernel-3, depth-stride-1, depth-padding-1 (transposed) conv."""
+    a, b, _, kh, kw = weight.shape  # conv: [out, in, 3, kh, kw]; transposed: [in, out, 3, kh, kw]
+    W2 = weight.new_zeros(a, D, b, D, kh, kw)
+    for d_out in range(D):
+        for k in range(3):
+            d_in = d_out + k - 1
+            if 0 <= d_in < D:
+                if transposed:  # out[d'] += in[d] w[d' - d + 1]: index by (in=d, out=d')
+                    W2[:, d_in, :, d_out] = weight[:, :, 2 - k]
+                else:
+                    W2[:, d_out, :, d_in] = weight[:, :, k]
+    return W2.reshape(a * D, b * D, kh, kw)
+
+
+def _folded(conv: nn.Module, bn: nn.Module | None, D: int | None = None):
+    """(weight, bias) of conv with the eval BatchNorm bn folded in; depth-banded when D is given."""
+    tensors = [conv.weight] + ([] if bn is None else [bn.weight, bn.bias, bn.running_mean, bn.running_var])
+    key = _cache_key(*tensors, extra=(D,))
+    if key not in _fold_cache:
+        if len(_fold_cache) > 128:
+            _fold_cache.clear()
+        transposed = isinstance(conv, nn.ConvTranspose3d)
+        w, bias = (conv.weight.detach(), None) if bn is None else fold_batchnorm(conv.weight, bn, transposed)
+        if D is not None:
+            w = _band(w, D, transposed)
+            bias = None if bias is None else bias.repeat_interleave(D)
+        _fold_cache[key] = (w, bias)
+    return _fold_cache[key]
+
+
+def _banded_conv(x: torch.Tensor, conv: nn.Module, bn: nn.Module | None) -> torch.Tensor:
+    """conv (3-D, depth kernel 3, depth stride 1) then eval bn as one 2-D convolution over (c, d)."""
     B, C, D, H, W = x.shape
-    y = torch.nn.functional.conv2d(x.reshape(B, C * D, H, W), _banded(conv.weight, D, False), None,
-                                   stride=conv.stride[1:], padding=conv.padding[1:])
+    w, b = _folded(conv, bn, D)
+    x2 = x.reshape(B, C * D, H, W)
+    if isinstance(conv, nn.ConvTranspose3d):
+        y = F.conv_transpose2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:],
+                               output_padding=conv.output_padding[1:])
+    else:
+        y = F.conv2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:])
     return y.reshape(B, -1, D, *y.shape[-2:])
 
 
-def _deconv3d_2d(x: torch.Tensor, conv: torch.nn.ConvTranspose3d) -> torch.Tensor:
-    B, C, D, H, W = x.shape
-    y = torch.nn.functional.conv_transpose2d(x.reshape(B, C * D, H, W), _banded(conv.weight, D, True),
-                                             stride=conv.stride[1:], padding=conv.padding[1:],
-                                             output_padding=conv.output_padding[1:])
-    return y.reshape(B, -1, D, *y.shape[-2:])
+def _conv_bn_relu(x: torch.Tensor, conv: nn.Module, bn: nn.Module) -> torch.Tensor:
+    """ReLU(bn(conv(x))) for any 3-D (transposed) conv, with bn folded in."""
+    w, b = _folded(conv, bn)
+    if isinstance(conv, nn.ConvTranspose3d):
+        y = F.conv_transpose3d(x, w, b, conv.stride, conv.padding, conv.output_padding)
+    else:
+        y = F.conv3d(x, w, b, conv.stride, conv.padding)
+    return y.relu_()
 
 
-def _bn_relu(x: torch.Tensor, bn: torch.nn.BatchNorm3d) -> torch.Tensor:
-    return torch.relu(torch.nn.functional.batch_norm(x, bn.running_mean, bn.running_var, bn.weight, bn.bias,
-                                                     False, 0.0, bn.eps))
+def _unet_fast(net: nn.Module, x: torch.Tensor, block, up) -> torch.Tensor:
+    """_unet_forward with in-place skips; block/up run one conv-bn-relu level."""
+    c2 = block(net.conv2, block(net.conv1, x))
+    c4 = block(net.conv4, block(net.conv3, c2))
+    y = block(net.conv6, block(net.conv5, c4))
+    y = up(net.conv7, y).add_(c4)
+    del c4
+    y = up(net.conv9, y).add_(c2)
+    del c2
+    return up(net.conv11, y).add_(x)
+
+
+def _fast_forward_2(net: CostRegNet, x: torch.Tensor) -> torch.Tensor:
+    def block(layer, y):
+        return _conv_bn_relu(y, layer.conv, layer.bn)
+
+    y = _unet_fast(net, x, block, block)
+    return _banded_conv(y, net.prob, None)
 
 
 def _fast_forward_3d(net: CostRegNet3D, x: torch.Tensor) -> torch.Tensor:
     def block(layer, y):
-        return _bn_relu(_conv3d_2d(y, layer.conv), layer.bn)
+        return _banded_conv(y, layer.conv, layer.bn).relu_()
 
     def up(seq, y):
-        return _bn_relu(_deconv3d_2d(y, seq[0]), seq[1])
+        return _banded_conv(y, seq[0], seq[1]).relu_()
 
-    c2 = block(net.conv2, block(net.conv1, x))
-    c4 = block(net.conv4, block(net.conv3, c2))
-    y = block(net.conv6, block(net.conv5, c4))
-    y = c4 + up(net.conv7, y)
-    y = c2 + up(net.conv9, y)
-    y = x + up(net.conv11, y)
-    return net.prob(y)
-
+    y = _unet_fast(net, x, block, up)
+    B, C = y.shape[:2]
+    w, b = net.prob.weight.reshape(1, C), net.prob.bias
+    return torch.matmul(w, y.reshape(B, C, -1)).add_(b.view(1, 1, 1)).reshape(B, 1, *y.shape[2:])
