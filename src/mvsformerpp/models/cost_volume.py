@@ -80,7 +80,7 @@ class StageNet(nn.Module):
     def cost_volume(self, features: torch.Tensor, proj: torch.Tensor, hypotheses: torch.Tensor) -> torch.Tensor:
         """features [B,V,C,H,W], proj [B,V,2,4,4], hypotheses [B,D,H,W] -> [B,G,D,H,W] (fp32)."""
         with torch.autocast(device_type=features.device.type, enabled=False):
-            ref = features[:, 0].float()
+            ref = features[:, 0].float().contiguous()
             ref_proj = projection_4x4(proj[:, 0, 0].float(), proj[:, 0, 1].float())
             B, C, H, W = ref.shape
             D = hypotheses.shape[1]

@@ -57,10 +57,17 @@ def per_image(fn, count: int, *inputs: torch.Tensor, out: list[torch.Tensor] | N
     for i in range(count):
         res = fn(*(x[i:i + 1] for x in inputs))
         if outs is None:
-            outs = [r.new_empty((count, *r.shape[1:])) for r in res]
+            outs = [torch.empty((count, *r.shape[1:]), dtype=r.dtype, device=r.device,
+                                memory_format=_memory_format(r)) for r in res]
         for o, r in zip(outs, res):
             o[i:i + 1] = r
     return outs
+
+
+def _memory_format(t: torch.Tensor) -> torch.memory_format:
+    if t.dim() == 4 and not t.is_contiguous() and t.is_contiguous(memory_format=torch.channels_last):
+        return torch.channels_last
+    return torch.contiguous_format
 
 
 def vit_input_size(H: int, W: int, rescale: float = 0.4375, patch: int = 14) -> tuple[int, int]:

@@ -94,7 +94,11 @@ class FMTWithPathway(nn.Module):
     @staticmethod
     def _upsample_add(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         # align_corners=False here, unlike the FPN decoder (spec 3).
-        return F.interpolate(x.float(), size=y.shape[-2:], mode="bilinear") + y
+        if torch.is_grad_enabled():
+            return F.interpolate(x.float(), size=y.shape[-2:], mode="bilinear") + y
+        # inference: channels-last (the smoothing convolutions run faster) and an in-place sum
+        x = x.float().contiguous(memory_format=torch.channels_last)
+        return F.interpolate(x, size=y.shape[-2:], mode="bilinear").add_(y)
 
     def pathway(self, s1, f2, f3, f4):
         """Carry refined stage-1 features down to the finer stages (spec 3)."""
