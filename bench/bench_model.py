@@ -23,15 +23,20 @@ import time
 OFFICIAL = {"512x640": (15.0, 2.1), "1152x1536": (100.0, 5.15)}  # seconds (midpoint of 12-18), GB
 
 
-def sgemm_gflops(n: int = 2048, reps: int = 5) -> float:
+def sgemm_gflops(n: int = 2048, reps: int = 3, trials: int = 7) -> float:
+    """This machine's fp32 matrix-multiply rate: the best of several trials (a busy moment only
+    lowers a trial, so the best is the most faithful floor and the strictest ratio)."""
     import torch
 
     a, b = torch.randn(n, n), torch.randn(n, n)
     a @ b
-    t = time.perf_counter()
-    for _ in range(reps):
-        a @ b
-    return 2 * n**3 * reps / (time.perf_counter() - t) / 1e9
+    best = 0.0
+    for _ in range(trials):
+        t = time.perf_counter()
+        for _ in range(reps):
+            a @ b
+        best = max(best, 2 * n**3 * reps / (time.perf_counter() - t) / 1e9)
+    return best
 
 
 def child(size: str, device: str, precision: str, views: int, count_flops: bool) -> dict:
@@ -99,13 +104,14 @@ def main() -> None:
         print(json.dumps(child(a.child, a.device, a.precision, a.views, not a.no_flops)))
         return
     rate = sgemm_gflops()
-    print(f"sgemm: {rate:.0f} GFLOP/s ({a.device}, measured now)")
     rows = []
     for size in a.sizes:
         cmd = [sys.executable, __file__, "--child", size, "--device", a.device, "--precision", a.precision,
                "--views", str(a.views)] + (["--no-flops"] if a.no_flops else [])
         out = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
+    rate = max(rate, sgemm_gflops())  # measured before and after the runs; the best one sets the floor
+    print(f"sgemm: {rate:.0f} GFLOP/s (cpu, best of the trials before and after the runs)")
     hdr = (f"{'size':>10} {'prec':>5} {'first s':>8} {'time s':>8} {'GFLOP':>7} {'floor s':>8} {'x floor':>8} "
            f"{'peak RSS GB':>11} {'vs official time':>16} {'vs official RSS':>15}")
     print(hdr)

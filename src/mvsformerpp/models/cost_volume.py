@@ -56,9 +56,16 @@ def visibility(vis: nn.Sequential, entropy: torch.Tensor) -> torch.Tensor:
     if vis.training or torch.is_grad_enabled():
         return vis(entropy)
     cl = torch.channels_last
-    x = entropy
-    for layer in vis[:3]:
+    # A one-channel map is both NCHW and NHWC, and oneDNN then takes a slow NCHW kernel for the first
+    # convolution; a zero second channel (with zero weights) makes the input unambiguously NHWC.
+    B, _, H, W = entropy.shape
+    x = entropy.new_zeros(B, H, W, 2)
+    x[..., 0] = entropy[:, 0]
+    x = x.permute(0, 3, 1, 2)
+    for i, layer in enumerate(vis[:3]):
         w, b = fold_batchnorm(layer.conv.weight, layer.bn)
+        if i == 0:
+            w = torch.cat([w, torch.zeros_like(w)], 1)
         x = F.conv2d(x.contiguous(memory_format=cl), w.contiguous(memory_format=cl), b, padding=1).relu_()
     return vis[3](x).sigmoid_().contiguous()
 

@@ -81,7 +81,7 @@ class CostRegNet3D(nn.Module):
 #   (c, d) with a depth-banded weight: W2[(o, d'), (c, d)] = W[o, c, d - d' + 1] for |d - d'| <= 1.
 #   oneDNN runs these wider 2-D convolutions several times faster than the thin 3-D ones (the stage-2
 #   logit head, with a single output channel, otherwise takes PyTorch's slow im2col path);
-# - the 1x1x1 logit head of stages 3-4 is one matrix product.
+# - the 1x1x1 logit head of stages 3-4 is a 1x1 2-D convolution over (c, d).
 
 _fold_cache: dict = {}
 
@@ -125,16 +125,20 @@ def _folded(conv: nn.Module, bn: nn.Module | None, D: int | None = None):
     return _fold_cache[key]
 
 
-def _banded_conv(x: torch.Tensor, conv: nn.Module, bn: nn.Module | None) -> torch.Tensor:
-    """conv (3-D, depth kernel 3, depth stride 1) then eval bn as one 2-D convolution over (c, d)."""
-    B, C, D, H, W = x.shape
+def _banded_conv2d(x2: torch.Tensor, conv: nn.Module, bn: nn.Module | None, D: int) -> torch.Tensor:
+    """conv (3-D, depth kernel 3, depth stride 1) then eval bn as one 2-D convolution over channels
+    (c, d): x2 is the volume [B, C, D, H, W] viewed as [B, C*D, H, W]."""
     w, b = _folded(conv, bn, D)
-    x2 = x.reshape(B, C * D, H, W)
     if isinstance(conv, nn.ConvTranspose3d):
-        y = F.conv_transpose2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:],
-                               output_padding=conv.output_padding[1:])
-    else:
-        y = F.conv2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:])
+        return F.conv_transpose2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:],
+                                  output_padding=conv.output_padding[1:])
+    return F.conv2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:])
+
+
+def _banded_conv(x: torch.Tensor, conv: nn.Module, bn: nn.Module | None) -> torch.Tensor:
+    """_banded_conv2d on a volume [B, C, D, H, W] -> [B, C', D, H', W']."""
+    B, C, D, H, W = x.shape
+    y = _banded_conv2d(x.reshape(B, C * D, H, W), conv, bn, D)
     return y.reshape(B, -1, D, *y.shape[-2:])
 
 
@@ -169,13 +173,20 @@ def _fast_forward_2(net: CostRegNet, x: torch.Tensor) -> torch.Tensor:
 
 
 def _fast_forward_3d(net: CostRegNet3D, x: torch.Tensor) -> torch.Tensor:
-    def block(layer, y):
-        return _banded_conv(y, layer.conv, layer.bn).relu_()
+    """Every level as a banded 2-D convolution on [B, C*D, h, w] maps, channels-last after the first
+    (oneDNN's preferred layout: no layout conversions of the full-resolution outputs)."""
+    B, C, D, H, W = x.shape
+
+    def block(layer, y):  # (only the first level's output needs the layout conversion)
+        return _banded_conv2d(y, layer.conv, layer.bn, D).relu_().contiguous(memory_format=torch.channels_last)
 
     def up(seq, y):
-        return _banded_conv(y, seq[0], seq[1]).relu_()
+        return _banded_conv2d(y, seq[0], seq[1], D).relu_()
 
-    y = _unet_fast(net, x, block, up)
-    B, C = y.shape[:2]
-    w, b = net.prob.weight.reshape(1, C), net.prob.bias
-    return torch.matmul(w, y.reshape(B, C, -1)).add_(b.view(1, 1, 1)).reshape(B, 1, *y.shape[2:])
+    y = _unet_fast(net, x.reshape(B, C * D, H, W), block, up)
+    # the 1x1x1 logit head: logits[d] = sum_c w_c y[c, d] + b, a 1x1 convolution over (c, d)
+    Cy = y.shape[1] // D
+    head = net.prob.weight.new_zeros(D, Cy, D)
+    head[torch.arange(D), :, torch.arange(D)] = net.prob.weight.reshape(1, Cy)
+    logits = F.conv2d(y, head.reshape(D, Cy * D, 1, 1), net.prob.bias.expand(D))
+    return logits.contiguous().unsqueeze(1)
