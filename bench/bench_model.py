@@ -39,6 +39,29 @@ def sgemm_gflops(n: int = 2048, reps: int = 3, trials: int = 7) -> float:
     return best
 
 
+def softmax_gscores(n: int = 4096, heads: int = 4, dim: int = 16, trials: int = 5) -> float:
+    """Rate of PyTorch's fused attention (G scores/s, best trial) at the CVT's head size (16): one
+    exponential per score, which bounds attention with small heads on a CPU, not the FLOPs."""
+    import torch
+    import torch.nn.functional as F
+
+    q, k, v = (torch.randn(1, heads, n, dim) for _ in range(3))
+    F.scaled_dot_product_attention(q, k, v)
+    best = 0.0
+    for _ in range(trials):
+        t = time.perf_counter()
+        F.scaled_dot_product_attention(q, k, v)
+        best = max(best, heads * n * n / (time.perf_counter() - t) / 1e9)
+    return best
+
+
+def cvt_exponentials(H: int, W: int, cfg) -> float:
+    """Softmax scores of the stage-1 cost-volume transformer (layers x heads x tokens^2)."""
+    pd, ph, pw = cfg.cvt_patch
+    tokens = cfg.num_hypotheses[0] // pd * (H // 8 // ph) * (W // 8 // pw)
+    return cfg.cvt_layers * cfg.cvt_heads * tokens**2
+
+
 def child(size: str, device: str, precision: str, views: int, count_flops: bool) -> dict:
     import resource
 
@@ -61,6 +84,25 @@ def child(size: str, device: str, precision: str, views: int, count_flops: bool)
     dtype = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}[precision]
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
+    # Time the two blocks whose attention softmax dominates: DINOv2 and the stage-1 cost-volume
+    # transformer (its exponentials, not its FLOPs, bound it on a CPU).
+    parts = {"vit": 0.0, "cvt": 0.0}
+
+    def timed(name, fn):
+        def wrapper(*args, **kwargs):
+            if device == "cuda":
+                torch.cuda.synchronize()
+            t0 = time.perf_counter()
+            out = fn(*args, **kwargs)
+            if device == "cuda":
+                torch.cuda.synchronize()
+            parts[name] += time.perf_counter() - t0
+            return out
+        return wrapper
+
+    model.vit.forward_taps = timed("vit", model.vit.forward_taps)
+    model.fusions[0].cost_reg.forward = timed("cvt", model.fusions[0].cost_reg.forward)
+
     def run():
         with torch.no_grad(), torch.autocast(device, dtype=dtype or torch.float32, enabled=dtype is not None):
             out = model(imgs, proj, dv)
@@ -74,12 +116,14 @@ def child(size: str, device: str, precision: str, views: int, count_flops: bool)
     t = time.perf_counter()
     run()
     cold = time.perf_counter() - t
+    parts.update(vit=0.0, cvt=0.0)
     t = time.perf_counter()
     run()
     seconds = time.perf_counter() - t
+    vit_s, cvt_s = parts["vit"], parts["cvt"]
     res = {"size": size, "device": device, "precision": precision, "seconds": seconds, "cold_seconds": cold,
            "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
-           "rss_after_build_gb": rss0 / 1e6}
+           "rss_after_build_gb": rss0 / 1e6, "vit_seconds": vit_s, "cvt_seconds": cvt_s}
     if device == "cuda":
         res["peak_cuda_gb"] = torch.cuda.max_memory_allocated() / 1e9
     if count_flops:
@@ -112,8 +156,17 @@ def main() -> None:
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     rate = max(rate, sgemm_gflops())  # measured before and after the runs; the best one sets the floor
     print(f"sgemm: {rate:.0f} GFLOP/s (cpu, best of the trials before and after the runs)")
-    hdr = (f"{'size':>10} {'prec':>5} {'first s':>8} {'time s':>8} {'GFLOP':>7} {'floor s':>8} {'x floor':>8} "
-           f"{'peak RSS GB':>11} {'vs official time':>16} {'vs official RSS':>15}")
+    if a.device == "cpu":
+        from mvsformerpp.models.config import get_config
+
+        score_rate = softmax_gscores()
+        for size in a.sizes:
+            H, W = (int(x) for x in size.split("x"))
+            n = cvt_exponentials(H, W, get_config("paper")) / 1e9
+            print(f"{size}: the CVT's softmax has {n:.2f} G scores (one exponential each); at this CPU's fused "
+                  f"attention rate ({score_rate:.2f} G scores/s, head size 16) they take {n / score_rate:.1f} s")
+    hdr = (f"{'size':>10} {'prec':>5} {'first s':>8} {'time s':>8} {'DINOv2 s':>8} {'CVT s':>6} {'GFLOP':>7} "
+           f"{'floor s':>8} {'x floor':>8} {'peak RSS GB':>11} {'vs official time':>16} {'vs official RSS':>15}")
     print(hdr)
     for r in rows:
         floor = r["gflop"] / rate if "gflop" in r else float("nan")
@@ -121,7 +174,7 @@ def main() -> None:
         vt = f"{r['cold_seconds'] / off[0]:.2f}x" if off and a.device == "cpu" else "-"
         vm = f"{r['peak_rss_gb'] / off[1]:.2f}x" if off and a.device == "cpu" else "-"
         print(f"{r['size']:>10} {r['precision']:>5} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} "
-              f"{r.get('gflop', float('nan')):>7.0f} "
+              f"{r['vit_seconds']:>8.2f} {r['cvt_seconds']:>6.2f} {r.get('gflop', float('nan')):>7.0f} "
               f"{floor:>8.2f} {r['seconds'] / floor:>8.2f} {r['peak_rss_gb']:>11.2f} {vt:>16} {vm:>15}")
 
 

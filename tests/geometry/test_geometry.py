@@ -121,3 +121,25 @@ def test_scale_intrinsics_maps_projections(s):
     X = np.array([0.3, -0.2, 2.0])
     p, q = K @ X, scale_intrinsics(K, s) @ X
     np.testing.assert_allclose(q[:2] / q[2], s * p[:2] / p[2])
+
+
+def test_warp_is_the_same_with_and_without_autograd_and_in_hypothesis_chunks():
+    """The in-place sampling grid (no autograd) repeats the differentiable form's operations exactly,
+    and chunks of hypotheses with precomputed per-view rays give the same warp as one call."""
+    from mvsformerpp.geometry.warping import warp_rays
+
+    torch.manual_seed(0)
+    K = torch.tensor([[60.0, 0, 40], [0, 60, 30], [0, 0, 1]])
+    E_ref, E_src = torch.eye(4), torch.eye(4)
+    c, s = np.cos(0.1), np.sin(0.1)
+    E_src[:3, :3] = torch.tensor([[c, 0, s], [0, 1, 0], [-s, 0, c]], dtype=torch.float32)
+    E_src[0, 3] = 3.0
+    ref_proj, src_proj = projection_4x4(E_ref[None], K[None]), projection_4x4(E_src[None], K[None])
+    feat = torch.randn(1, 4, 60, 80)
+    depth = (torch.rand(1, 6, 60, 80) * 20 + 30).requires_grad_()
+    with_grad = homography_warp(feat, src_proj, ref_proj, depth)
+    plain = homography_warp(feat, src_proj, ref_proj, depth.detach())
+    rays = warp_rays(src_proj, ref_proj, 60, 80)
+    chunks = torch.cat([homography_warp(feat, src_proj, ref_proj, depth.detach()[:, d:d + 2], rays)
+                        for d in range(0, 6, 2)], 2)
+    assert torch.equal(with_grad.detach(), plain) and torch.equal(plain, chunks)

@@ -32,7 +32,9 @@ def make_views(scene: Scene, depths: list[np.ndarray], confidences: list[np.ndar
             img = np.asarray(Image.fromarray(img).resize((w, h), Image.BILINEAR))
         conf = np.ones_like(depth) if confidences is None else np.asarray(confidences[i], dtype=np.float32)
         depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
-        t = lambda a, dt=torch.float32: torch.as_tensor(a, dtype=dt, device=device)  # noqa: E731
+        def t(a, dt=torch.float32):  # (arrays read from images can be read-only: torch needs writable)
+            return torch.as_tensor(a if a.flags.writeable else a.copy(), dtype=dt, device=device)
+
         views.append(FusionView(t(depth), t(conf), t(K), t(view.extrinsic), t(img[..., :3], torch.uint8)))
     return views
 

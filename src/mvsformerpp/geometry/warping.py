@@ -18,11 +18,27 @@ def projection_4x4(extrinsic: torch.Tensor, intrinsic: torch.Tensor) -> torch.Te
     return proj
 
 
+def warp_rays(src_proj: torch.Tensor, ref_proj: torch.Tensor, H: int, W: int):
+    """The per-view part of the warp: ``(R [x, y, 1]^T for every reference pixel [B, 3, H*W], t [B, 3, 1])``
+    of the relative projection ``src_proj @ ref_proj^-1``; reusable for every hypothesis chunk."""
+    with torch.autocast(device_type=src_proj.device.type, enabled=False):
+        proj = src_proj.float() @ torch.inverse(ref_proj.float())
+        rot, trans = proj[:, :3, :3], proj[:, :3, 3:4]
+        y, x = torch.meshgrid(
+            torch.arange(H, dtype=torch.float32, device=proj.device),
+            torch.arange(W, dtype=torch.float32, device=proj.device),
+            indexing="ij",
+        )
+        xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones_like(x).reshape(-1)))  # [3, HW]
+        return rot @ xyz, trans
+
+
 def homography_warp(
     src_feat: torch.Tensor,
     src_proj: torch.Tensor,
     ref_proj: torch.Tensor,
     depth_hypotheses: torch.Tensor,
+    rays: tuple[torch.Tensor, torch.Tensor] | None = None,
 ) -> torch.Tensor:
     """Sample source features at the projections of reference pixels lifted to each hypothesis depth.
 
@@ -31,29 +47,37 @@ def homography_warp(
         src_proj, ref_proj: [B, 4, 4] projections from :func:`projection_4x4` (intrinsics at the
             feature map's scale).
         depth_hypotheses: [B, D, H, W] z-depths in the reference camera, per reference pixel.
+        rays: :func:`warp_rays` of these projections, when the caller warps in hypothesis chunks.
     Returns:
         [B, C, D, H, W] warped source features; zeros where the projection leaves the image.
     Computed in float32 whatever the caller's autocast (the reference disables autocast here).
     """
     B, C, H, W = src_feat.shape
     D = depth_hypotheses.shape[1]
-    device_type = src_feat.device.type
-    with torch.autocast(device_type=device_type, enabled=False):
+    with torch.autocast(device_type=src_feat.device.type, enabled=False):
         src_feat = src_feat.float()
-        depth = depth_hypotheses.float()
-        proj = src_proj.float() @ torch.inverse(ref_proj.float())
-        rot, trans = proj[:, :3, :3], proj[:, :3, 3:4]
-        y, x = torch.meshgrid(
-            torch.arange(H, dtype=torch.float32, device=src_feat.device),
-            torch.arange(W, dtype=torch.float32, device=src_feat.device),
-            indexing="ij",
-        )
-        xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones_like(x).reshape(-1)))  # [3, HW]
-        rot_xyz = rot @ xyz  # [B, 3, HW]
-        pts = rot_xyz.unsqueeze(2) * depth.reshape(B, 1, D, H * W) + trans.reshape(B, 3, 1, 1)
-        xy = pts[:, :2] / (pts[:, 2:3] + 1e-6)  # [B, 2, D, HW]
-        gx = xy[:, 0] / ((W - 1) / 2) - 1
-        gy = xy[:, 1] / ((H - 1) / 2) - 1
-        grid = torch.stack((gx, gy), dim=3).reshape(B, D * H, W, 2)
+        depth = depth_hypotheses.float().reshape(B, 1, D, H * W)
+        rot_xyz, trans = rays if rays is not None else warp_rays(src_proj, ref_proj, H, W)
+        if depth.requires_grad or rot_xyz.requires_grad:  # differentiable form
+            pts = rot_xyz.unsqueeze(2) * depth + trans.reshape(B, 3, 1, 1)
+            xy = pts[:, :2] / (pts[:, 2:3] + 1e-6)  # [B, 2, D, HW]
+            gx = xy[:, 0] / ((W - 1) / 2) - 1
+            gy = xy[:, 1] / ((H - 1) / 2) - 1
+            grid = torch.stack((gx, gy), dim=3).reshape(B, D * H, W, 2)
+        else:  # the same numbers with fewer passes over the [B, D, H*W] grid
+            grid = _sampling_grid(rot_xyz, trans, depth[:, 0], H, W)
         warped = F.grid_sample(src_feat, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
     return warped.reshape(B, C, D, H, W)
+
+
+def _sampling_grid(rot_xyz: torch.Tensor, trans: torch.Tensor, depth: torch.Tensor, H: int, W: int):
+    """grid_sample coordinates (x / z, y / z) normalised with align_corners=True, for points
+    rot_xyz * depth + trans: rot_xyz [B, 3, HW], trans [B, 3, 1], depth [B, D, HW] -> [B, D*H, W, 2].
+    The same operations in the same order as the differentiable form (bit-identical), in place."""
+    B, D, HW = depth.shape
+    z = torch.mul(rot_xyz[:, 2:3], depth).add_(trans[:, 2:3]).add_(1e-6)  # [B, D, HW]
+    grid = depth.new_empty(B, D, HW, 2)
+    for i, size in ((0, W), (1, H)):
+        coord = torch.mul(rot_xyz[:, i:i + 1], depth).add_(trans[:, i:i + 1]).div_(z)
+        torch.div(coord, (size - 1) / 2, out=grid[..., i]).sub_(1)
+    return grid.reshape(B, D * H, W, 2)

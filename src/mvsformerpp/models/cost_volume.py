@@ -9,7 +9,7 @@ import torch.nn.functional as F
 from torch import nn
 from torch.utils.checkpoint import checkpoint
 
-from mvsformerpp.geometry.warping import homography_warp, projection_4x4
+from mvsformerpp.geometry.warping import homography_warp, projection_4x4, warp_rays
 from mvsformerpp.models.cvt import CostVolumeTransformer
 from mvsformerpp.models.layers import ConvBnReLU, fold_batchnorm
 from mvsformerpp.models.regularization import CostRegNet, CostRegNet3D
@@ -20,8 +20,15 @@ def group_correlation(ref: torch.Tensor, warped: torch.Tensor, groups: int, out:
     B, C, D, H, W = warped.shape
     if groups == C:
         return torch.mul(ref[:, :, None], warped, out=out)
-    prod = ref.reshape(B, groups, C // groups, 1, H, W) * warped.reshape(B, groups, C // groups, D, H, W)
-    return torch.mean(prod, 2, out=out)
+    cg = C // groups
+    r, w = ref.reshape(B, groups, cg, 1, H, W), warped.reshape(B, groups, cg, D, H, W)
+    if out is None or torch.is_grad_enabled():
+        return torch.mean(r * w, 2, out=out)
+    # inference: accumulate channel by channel into out (no [B, C, D, H, W] product)
+    torch.mul(r[:, :, 0], w[:, :, 0], out=out)
+    for c in range(1, cg):
+        out.addcmul_(r[:, :, c], w[:, :, c])
+    return out.mul_(1.0 / cg)
 
 
 def matching_entropy(corr: torch.Tensor) -> torch.Tensor:
@@ -98,9 +105,10 @@ class StageNet(nn.Module):
             for v in range(1, features.shape[1]):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())
                 src = features[:, v].float()
+                rays = warp_rays(src_proj, ref_proj, H, W)
                 corr = spare if spare is not None else ref.new_empty(B, self.groups, D, H, W)
                 for d in range(0, D, step):
-                    warped = homography_warp(src, src_proj, ref_proj, hypotheses[:, d:d + step])
+                    warped = homography_warp(src, src_proj, ref_proj, hypotheses[:, d:d + step], rays)
                     if inplace:
                         group_correlation(ref, warped, self.groups, out=corr[:, :, d:d + step])
                     else:
