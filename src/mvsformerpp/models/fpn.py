@@ -116,31 +116,30 @@ class FPNDecoder(nn.Module):
         """out3(up2(t2) + inner3(conv01)) in row bands, without any 64-channel full-resolution map.
 
         By linearity, Conv3x3(up2(t2) + inner3(conv01)) = Conv3x3(up2(t2) + b_inner) + Conv3x3'(conv01)
-        with Conv3x3' = Conv3x3 o inner3 (c0 -> c0 channels), both zero-padded at the image border: one
-        convolution over the channel concatenation [up2(t2) + b_inner, conv01]. The eval BatchNorm is
-        folded into it and Swish runs in place. Each band of output rows needs its input rows and one
-        halo row either side; the upsampling of those rows is computed directly (separable bilinear,
-        align_corners=True). The same numbers up to float rounding, a bounded working set.
+        with Conv3x3' = Conv3x3 o inner3 (c0 -> c0 channels), both zero-padded at the image border. The
+        second term is one thin convolution over the whole image; the first runs in bands of output
+        rows, each needing its input rows and one halo row either side, whose upsampling is computed
+        directly (separable bilinear, align_corners=True). The eval BatchNorm is folded in and Swish
+        runs in place. The same numbers up to float rounding, a bounded working set.
         """
         conv, bn, inner = self.out3[0], self.out3[1], self.inner3
         w_fold = torch.einsum("ocij,ck->okij", conv.weight, inner.weight[:, :, 0, 0])
         w, b = fold_batchnorm(torch.cat([conv.weight, w_fold], 1), bn, bias=conv.bias)
-        cl = torch.channels_last  # oneDNN runs this thin full-resolution convolution fastest in NHWC
-        w = w.contiguous(memory_format=cl)
-        conv01 = conv01.contiguous(memory_format=cl)
+        cl = torch.channels_last  # oneDNN runs these thin full-resolution convolutions fastest in NHWC
+        w_up = w[:, : conv.in_channels].contiguous(memory_format=cl)
+        w_low = w[:, conv.in_channels:].contiguous(memory_format=cl)
+        out = F.conv2d(conv01.float().contiguous(memory_format=cl), w_low, b, padding=1)
         t2 = t2.float().permute(0, 2, 3, 1).contiguous()  # NHWC rows: cheap to gather and interpolate
-        N, _, H, W = conv01.shape
-        out = torch.empty(N, conv.out_channels, H, W, device=conv01.device, memory_format=_CL)
-        rows = max(4, band_bytes // (4 * w.shape[1] * W))
+        N, _, H, W = out.shape
+        rows = max(4, band_bytes // (4 * w_up.shape[1] * W))
         for r0 in range(0, H, rows):
             r1 = min(H, r0 + rows)
             a, z = max(r0 - 1, 0), min(r1 + 1, H)
             up = _up2_rows_nhwc(t2, a, z, H, W).add_(inner.bias.view(1, -1, 1, 1))
-            x = torch.cat([up, conv01[:, :, a:z].float().contiguous(memory_format=cl)], 1)
             # zero padding is right at the image border; elsewhere the halo rows are real and the
             # padded output rows are dropped
-            y = F.conv2d(x, w, b, padding=1)[:, :, r0 - a:r1 - a]
-            out[:, :, r0:r1] = y.mul_(torch.sigmoid(y))
+            band = out[:, :, r0:r1].add_(F.conv2d(up, w_up, padding=1)[:, :, r0 - a:r1 - a])
+            band.mul_(torch.sigmoid(band))
         return out
 
 
