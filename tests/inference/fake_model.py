@@ -36,7 +36,7 @@ class FakeMVSModel(torch.nn.Module):
         self.encoded += imgs.shape[0]
         return FakeFeatures(F.avg_pool2d(imgs, 8) * self.scale)
 
-    def forward(self, imgs, proj_matrices, depth_values, temperatures, image_features=None):
+    def forward(self, imgs, proj_matrices, depth_values, temperatures, image_features=None, release_features=False):
         B, V, _, H, W = imgs.shape
         self.forwards += 1
         if image_features is None:

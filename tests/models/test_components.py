@@ -264,3 +264,18 @@ def test_banded_decoder_level_matches_upsample_then_convolve():
         for rows in (4, 5, 18, 64):
             out = dec._last_level_inference(t2, conv01, band_bytes=4 * 72 * 26 * rows)
             assert torch.allclose(out, ref, atol=1e-5), rows
+
+
+def test_precomputed_features_give_the_same_output_and_can_be_released():
+    model = build_model("lite").eval()
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    with torch.no_grad():
+        ref = model(imgs, proj, dv)
+        feats = model.encode_images(imgs.flatten(0, 1))
+        kept = model(imgs, proj, dv, image_features=feats)
+        assert len(feats) == 3  # not released unless asked
+        released = model(imgs, proj, dv, image_features=feats, release_features=True)
+    assert feats.fpn == () and feats.vit_taps == []
+    for out in (kept, released):
+        assert torch.allclose(out["depth"], ref["depth"]) and torch.allclose(
+            out["photometric_confidence"], ref["photometric_confidence"])

@@ -79,7 +79,9 @@ class SceneInference:
 
     ``model`` follows the MVSFormer++ interface: ``encode_images(imgs [N,3,H,W])`` returns per-image
     features and ``forward(imgs [1,V,3,H,W], proj_matrices, depth_values [1,D], temperatures,
-    image_features=...)`` returns ``depth`` and ``photometric_confidence`` ``[1,H,W]``.
+    image_features=..., release_features=True)`` returns ``depth`` and ``photometric_confidence``
+    ``[1,H,W]`` (the features passed are a concatenated copy made for that call, which the network may
+    empty once it no longer needs them).
     ``load_image(i)`` returns view ``i``'s uint8 ``[H,W,3]`` photo at its original size.
     ``cache_bytes=0`` disables the cache: ``forward`` then encodes every image of every view set.
     """
@@ -135,7 +137,9 @@ class SceneInference:
                                       dtype=torch.float32, device=self.device)[None]
         feats = self.cache.get_many(ids) if self.use_cache else None
         with self._autocast():
-            out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats)
+            out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
+                             release_features=feats is not None)
+        del feats
         plan = self.plans[ref]
         depth = plan.canvas_to_original(out["depth"][0].float(), mode="bilinear")
         conf = plan.canvas_to_original(out["photometric_confidence"][0].float(), mode="bilinear")

@@ -45,6 +45,10 @@ class ImageFeatures:
             tuple(torch.cat([it.fpn[i] for it in items]) for i in range(len(items[0].fpn))),
         )
 
+    def release(self) -> None:
+        """Drop the references to the tensors (the object is empty afterwards)."""
+        self.vit_taps, self.fpn = [], ()
+
     def nbytes(self) -> int:
         return sum(t.numel() * t.element_size() for t in [*self.vit_taps, *self.fpn])
 

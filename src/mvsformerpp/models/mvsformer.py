@@ -51,7 +51,8 @@ class MVSFormerPP(nn.Module):
         return encode_images(self.vit, self.encoder, imgs, self.config.vit_rescale)
 
     def forward(self, imgs: torch.Tensor, proj_matrices: dict, depth_values: torch.Tensor,
-                temperatures=None, image_features: ImageFeatures | None = None) -> dict:
+                temperatures=None, image_features: ImageFeatures | None = None,
+                release_features: bool = False) -> dict:
         """Run the cascade.
 
         Args:
@@ -64,6 +65,9 @@ class MVSFormerPP(nn.Module):
                 training mode, which takes the argmax hypothesis.
             image_features: precomputed :meth:`encode_images` output for the B*V images (batch-major);
                 ``imgs`` is then only used for its shape.
+            release_features: empty ``image_features`` (see :meth:`ImageFeatures.release`) once the
+                views are decoded, so that its maps do not stay in memory for the rest of the cascade;
+                for callers that built it for this call only.
         Returns:
             {"stage1".."stage4": {"depth" [B,h,w], "photometric_confidence" [B,h,w],
             "prob_volume_pre" [B,D,h,w] logits, "depth_values" [B,D,h,w] hypotheses},
@@ -79,6 +83,8 @@ class MVSFormerPP(nn.Module):
         features = decode_views(self.decoder_vit, self.decoder, image_features, B, V)
         if own:
             del image_features  # the encoder maps are not needed any more: free them before the FMT
+        elif release_features:
+            image_features.release()
         features = self.FMT_module(features)
         temps = tuple(cfg.temperatures if temperatures is None else temperatures)
         dmin_all, dmax_all = depth_values.min(), depth_values.max()
