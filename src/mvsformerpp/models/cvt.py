@@ -10,7 +10,7 @@ import torch
 from torch import nn
 
 from mvsformerpp.models.attention import softmax_attention
-from mvsformerpp.models.layers import LayerNorm3D
+from mvsformerpp.models.layers import LayerNorm3D, gelu_
 
 # Mean stage-1 token count over the 25 training scales (spec 6.1); the reference truncates 12185.6.
 TRAIN_AVG_TOKENS = 12185
@@ -80,11 +80,10 @@ class FFN(nn.Module):
     def __init__(self, dim: int, hidden: int):
         super().__init__()
         self.linear1 = nn.Linear(dim, hidden)
-        self.act = nn.GELU()
         self.linear2 = nn.Linear(hidden, dim)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        return self.linear2(self.act(self.linear1(x)))
+        return self.linear2(gelu_(self.linear1(x)))
 
 
 class CVTBlock(nn.Module):
