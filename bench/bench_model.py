@@ -4,8 +4,10 @@
 ``time s`` the next one (steady state, as when a scene is reconstructed view after view); the
 ratio to the floor uses the steady state.
 
-Each configuration runs in a fresh subprocess (clean peak RSS). The floor is the forward's FLOPs
-(torch.utils.flop_counter) divided by this machine's measured sgemm rate, both measured in this run.
+Each configuration runs in a fresh subprocess (clean peak RSS) with the malloc tuning the
+``mvsformerpp`` command applies (mvsformerpp.utils.allocator; ``--system-allocator`` leaves glibc's
+defaults). The floor is the forward's FLOPs (torch.utils.flop_counter) divided by this machine's
+measured sgemm rate, both measured in this run.
 Reference numbers of the official code on a 2-core machine (fp32): 12-18 s and 2.1 GB peak RSS at
 512x640, 100 s and 5.15 GB at 1152x1536.
 
@@ -62,9 +64,13 @@ def cvt_exponentials(H: int, W: int, cfg) -> float:
     return cfg.cvt_layers * cfg.cvt_heads * tokens**2
 
 
-def child(size: str, device: str, precision: str, views: int, count_flops: bool) -> dict:
+def child(size: str, device: str, precision: str, views: int, count_flops: bool, tune: bool) -> dict:
     import resource
 
+    if tune:
+        from mvsformerpp.utils.allocator import tune_allocator
+
+        tune_allocator()
     import torch
 
     from mvsformerpp.models import build_model
@@ -142,20 +148,23 @@ def main() -> None:
     ap.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "fp16"])
     ap.add_argument("--views", type=int, default=5)
     ap.add_argument("--no-flops", action="store_true", help="skip FLOP counting (it costs one more forward)")
+    ap.add_argument("--system-allocator", action="store_true", help="glibc's default malloc settings")
     ap.add_argument("--child", help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        print(json.dumps(child(a.child, a.device, a.precision, a.views, not a.no_flops)))
+        print(json.dumps(child(a.child, a.device, a.precision, a.views, not a.no_flops, not a.system_allocator)))
         return
     rate = sgemm_gflops()
     rows = []
     for size in a.sizes:
         cmd = [sys.executable, __file__, "--child", size, "--device", a.device, "--precision", a.precision,
-               "--views", str(a.views)] + (["--no-flops"] if a.no_flops else [])
+               "--views", str(a.views)] + (["--no-flops"] if a.no_flops else []) + \
+              (["--system-allocator"] if a.system_allocator else [])
         out = subprocess.run(cmd, capture_output=True, text=True, check=True)
         rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
     rate = max(rate, sgemm_gflops())  # measured before and after the runs; the best one sets the floor
     print(f"sgemm: {rate:.0f} GFLOP/s (cpu, best of the trials before and after the runs)")
+    print("malloc: " + ("glibc defaults" if a.system_allocator else "tuned as the mvsformerpp command does"))
     if a.device == "cpu":
         from mvsformerpp.models.config import get_config
 

@@ -1,5 +1,5 @@
 import sys
 
-from mvsformerpp.cli import main
+from mvsformerpp.cli import entry
 
-sys.exit(main())
+sys.exit(entry())

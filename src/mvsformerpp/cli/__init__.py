@@ -46,5 +46,13 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
+def entry() -> int:
+    """The console script: tune the allocator for large tensors (see utils.allocator), then run."""
+    from mvsformerpp.utils.allocator import tune_allocator
+
+    tune_allocator()
+    return main()
+
+
 if __name__ == "__main__":
-    sys.exit(main())
+    sys.exit(entry())
