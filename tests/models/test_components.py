@@ -24,6 +24,17 @@ def test_linear_attention_matches_its_quadratic_formula():
     torch.testing.assert_close(linear_attention(q, k, v), expected, rtol=1e-5, atol=1e-6)
 
 
+def test_linear_attention_with_shared_keys_equals_repeated_keys():
+    """S query sets per key set (source views attending to their sample's reference) give exactly what
+    repeating the keys and values S times gives."""
+    torch.manual_seed(1)
+    q = torch.randn(6, 9, 2, 4)  # B*S = 2*3 query samples
+    k, v = torch.randn(2, 7, 2, 4), torch.randn(2, 7, 2, 4)
+    shared = linear_attention(q, k, v)
+    repeated = linear_attention(q, k.repeat_interleave(3, 0), v.repeat_interleave(3, 0))
+    assert torch.equal(shared, repeated)
+
+
 @pytest.mark.parametrize("scale", [None, 0.37])
 def test_softmax_backends_agree(scale):
     torch.manual_seed(1)

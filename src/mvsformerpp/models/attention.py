@@ -66,12 +66,18 @@ def linear_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, eps: flo
     """Linear attention (Katharopoulos et al. 2020) as SVA uses it, for [B, L, heads, head_dim] inputs.
 
     out_i = phi(q_i)^T [sum_j phi(k_j) v_j^T] / (phi(q_i)^T sum_j phi(k_j) + eps), phi = elu + 1.
-    Computed in float32 whatever the surrounding autocast, as the reference does.
+    Computed in float32 whatever the surrounding autocast, as the reference does. Keys and values may
+    have a batch B that divides the queries' batch B*S: query sample b*S + s then attends to key
+    sample b (S query sets sharing one key set, whose summaries are computed once).
     """
     with torch.autocast(device_type=q.device.type, enabled=False):
         q = F.elu(q.float()) + 1
         k = F.elu(k.float()) + 1
         v = v.float()
         kv = torch.einsum("nshd,nshm->nhmd", k, v)
-        z = 1 / (torch.einsum("nlhd,nhd->nlh", q, k.sum(dim=1)) + eps)
+        ksum = k.sum(dim=1)
+        if k.shape[0] != q.shape[0]:
+            S = q.shape[0] // k.shape[0]
+            kv, ksum = kv.repeat_interleave(S, dim=0), ksum.repeat_interleave(S, dim=0)
+        z = 1 / (torch.einsum("nlhd,nhd->nlh", q, ksum) + eps)
         return torch.einsum("nlhd,nhmd,nlh->nlhm", q, kv, z)

@@ -72,7 +72,7 @@ class FeatureMatchingTransformer(nn.Module):
                 s = layer(s)
             else:
                 kv = ref_list[i if len(ref_list) == len(self.layers) else i // 2]
-                s = layer(s, kv.repeat_interleave(S, dim=0))
+                s = layer(s, kv)  # the S source views of a sample share its reference keys/values
         return ref_out, s.transpose(1, 2).reshape(B * S, C, h, w)
 
 

@@ -23,13 +23,15 @@ class LinearAttention(nn.Module):
         self.proj = nn.Linear(dim, dim)
 
     def forward(self, x: torch.Tensor, key: torch.Tensor | None = None, value: torch.Tensor | None = None):
+        """x [B*S, N, C]; key, value [B, M, C] (default x), shared by S consecutive query samples."""
         B, N, C = x.shape
         key = x if key is None else key
         value = x if value is None else value
-        heads = (B, -1, self.num_heads, C // self.num_heads)
-        out = linear_attention(
-            self.q_proj(x).reshape(heads), self.k_proj(key).reshape(heads), self.v_proj(value).reshape(heads)
-        )
+
+        def heads(t):
+            return t.reshape(t.shape[0], -1, self.num_heads, C // self.num_heads)
+
+        out = linear_attention(heads(self.q_proj(x)), heads(self.k_proj(key)), heads(self.v_proj(value)))
         return self.proj(out.reshape(B, N, C).to(x.dtype))
 
 
@@ -51,6 +53,7 @@ class LinearAttentionBlock(nn.Module):
         self.ls2 = LayerScale(dim)
 
     def forward(self, x: torch.Tensor, kv: torch.Tensor | None = None) -> torch.Tensor:
+        """x [B*S, N, C]; kv [B, M, C] for cross-attention, shared by S consecutive samples of x."""
         q = self.norm1(x)
         if kv is None:
             k = v = q
@@ -97,16 +100,15 @@ class SideViewAttention(nn.Module):
         V = taps[0].shape[1]
         if V == 1:
             return ref[-1][:, None]
-        # All source views at once: fold them into the batch, repeat the reference keys/values.
+        # All source views at once, folded into the batch.
         B, _, L, C = taps[0].shape
         def src_tap(i):  # noqa: E306
             return taps[i][:, 1:].reshape(B * (V - 1), L, C)
-        def ref_kv(i):  # noqa: E306
-            return ref[i][:, None].expand(B, V - 1, L, C).reshape(B * (V - 1), L, C)
-        src = self.cross_attn_blocks[0](src_tap(0), ref_kv(0))
+        # every source view of a sample attends to the same reference keys/values (computed once)
+        src = self.cross_attn_blocks[0](src_tap(0), ref[0])
         for i in range(1, len(self.cross_attn_blocks)):
             query = self.norm_layers[i - 1](self.prev_values[i - 1] * src + src_tap(i))
-            src = self.cross_attn_blocks[i](query, ref_kv(i))
+            src = self.cross_attn_blocks[i](query, ref[i])
         return torch.cat([ref[-1][:, None], src.reshape(B, V - 1, L, C)], dim=1)
 
     def upsample(self, tokens: torch.Tensor, hw: tuple[int, int]) -> torch.Tensor:
