@@ -290,3 +290,23 @@ def test_precomputed_features_give_the_same_output_and_can_be_released():
     for out in (kept, released):
         assert torch.allclose(out["depth"], ref["depth"]) and torch.allclose(
             out["photometric_confidence"], ref["photometric_confidence"])
+
+
+def test_inference_weight_caches_follow_the_model_and_its_updates():
+    """Folded/banded weights are cached per module and keyed by parameter versions: a second model
+    (even one whose tensors reuse the first one's memory) and in-place weight updates are seen."""
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    for seed in (11, 12):
+        torch.manual_seed(seed)
+        model = build_model("lite").eval()
+        _randomise_batchnorm(model, seed)
+        with torch.no_grad():
+            fast = model(imgs, proj, dv)["stage4"]["prob_volume_pre"]
+        plain = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].detach()
+        assert torch.allclose(fast, plain, atol=1e-4 * plain.abs().max().item())
+        with torch.no_grad():
+            model.fusions[3].cost_reg.conv1.conv.weight.mul_(-1)
+            fast = model(imgs, proj, dv)["stage4"]["prob_volume_pre"]
+        plain = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].detach()
+        assert torch.allclose(fast, plain, atol=1e-4 * plain.abs().max().item())
+        del model

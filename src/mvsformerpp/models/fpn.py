@@ -112,7 +112,7 @@ class FPNDecoder(nn.Module):
         out2 = _out_block_inference(self.out2, t2)
         return [out0, out1, out2, self._last_level_inference(t2, conv01)]
 
-    def _last_level_inference(self, t2: torch.Tensor, conv01: torch.Tensor, band_bytes: int = 1 << 23):
+    def _last_level_inference(self, t2: torch.Tensor, conv01: torch.Tensor, band_bytes: int = 1 << 24):
         """out3(up2(t2) + inner3(conv01)) in row bands, without any 64-channel full-resolution map.
 
         By linearity, Conv3x3(up2(t2) + inner3(conv01)) = Conv3x3(up2(t2) + b_inner) + Conv3x3'(conv01)
