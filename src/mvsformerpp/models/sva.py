@@ -5,10 +5,11 @@ source view attend to the reference view, on the DINOv2 tokens, then a projectio
 from __future__ import annotations
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from mvsformerpp.models.attention import linear_attention
-from mvsformerpp.models.layers import LayerScale, Mlp
+from mvsformerpp.models.layers import LayerScale, Mlp, fold_batchnorm
 
 
 class LinearAttention(nn.Module):
@@ -59,8 +60,12 @@ class LinearAttentionBlock(nn.Module):
             k = v = q
         else:
             k = v = self.norm1(kv) if self.norm_kv else kv
-        x = x + self.ls1(self.attn(q, k, v))
-        return x + self.ls2(self.mlp(self.norm2(x)))
+        if torch.is_grad_enabled():
+            x = x + self.ls1(self.attn(q, k, v))
+            return x + self.ls2(self.mlp(self.norm2(x)))
+        # inference: each residual branch scaled and added in one pass
+        x = torch.addcmul(x, self.attn(q, k, v), self.ls1.gamma)
+        return torch.addcmul(x, self.mlp(self.norm2(x)), self.ls2.gamma)
 
 
 class SideViewAttention(nn.Module):
@@ -115,7 +120,17 @@ class SideViewAttention(nn.Module):
         """[N, L, C] tokens on an h x w grid -> [N, out_ch, 4h, 4w]."""
         N, _, C = tokens.shape
         x = tokens.reshape(N, hw[0], hw[1], C).permute(0, 3, 1, 2)
-        return self.upsampler1(self.upsampler0(self.proj(x)))
+        if self.training or torch.is_grad_enabled():
+            return self.upsampler1(self.upsampler0(self.proj(x)))
+        for conv, bn, _ in (self.proj, self.upsampler0, self.upsampler1):  # inference: BatchNorm folded
+            if isinstance(conv, nn.ConvTranspose2d):
+                w, b = fold_batchnorm(conv.weight, bn, transposed=True, bias=conv.bias)
+                x = F.conv_transpose2d(x, w, b, conv.stride, conv.padding)
+            else:
+                w, b = fold_batchnorm(conv.weight, bn, bias=conv.bias)
+                x = F.conv2d(x, w, b, conv.stride, conv.padding)
+            x = F.silu(x, inplace=True)
+        return x
 
     def forward(self, taps: list[torch.Tensor], hw: tuple[int, int]) -> torch.Tensor:
         """taps: each [B, V, L, C] -> [B*V, out_ch, 4h, 4w] (batch-major)."""
