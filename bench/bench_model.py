@@ -178,7 +178,7 @@ def main() -> None:
            f"{'floor s':>8} {'x floor':>8} {'peak RSS GB':>11} {'vs official time':>16} {'vs official RSS':>15}")
     print(hdr)
     for r in rows:
-        floor = r["gflop"] / rate if "gflop" in r else float("nan")
+        floor = r["gflop"] / rate if "gflop" in r and a.device == "cpu" else float("nan")  # CPU sgemm floor
         off = OFFICIAL.get(r["size"])
         vt = f"{r['cold_seconds'] / off[0]:.2f}x" if off and a.device == "cpu" else "-"
         vm = f"{r['peak_rss_gb'] / off[1]:.2f}x" if off and a.device == "cpu" else "-"
