@@ -247,7 +247,7 @@ def test_inference_fast_paths_match_the_plain_modules():
     imgs, proj, dv = _random_batch(1, 3, 96, 160)
     plain = model(imgs, proj, dv)  # grad enabled: the reference composition
     default = fpn.FPNDecoder._last_level_inference.__defaults__
-    fpn.FPNDecoder._last_level_inference.__defaults__ = (4 * 72 * 160 * 8,)  # bands of 8 rows
+    fpn.FPNDecoder._last_level_inference.__defaults__ = (4 * 64 * 160 * 8,)  # bands of 8 rows
     try:
         with torch.no_grad():
             fast = model(imgs, proj, dv)
@@ -273,7 +273,7 @@ def test_banded_decoder_level_matches_upsample_then_convolve():
                    + dec.inner3(conv01)).detach()
     with torch.no_grad():
         for rows in (4, 5, 18, 64):
-            out = dec._last_level_inference(t2, conv01, band_bytes=4 * 72 * 26 * rows)
+            out = dec._last_level_inference(t2, conv01, band_bytes=4 * 64 * 26 * rows)
             assert torch.allclose(out, ref, atol=1e-5), rows
 
 

@@ -139,7 +139,6 @@ class SceneInference:
         with self._autocast():
             out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
                              release_features=feats is not None)
-        del feats
         plan = self.plans[ref]
         depth = plan.canvas_to_original(out["depth"][0].float(), mode="bilinear")
         conf = plan.canvas_to_original(out["photometric_confidence"][0].float(), mode="bilinear")

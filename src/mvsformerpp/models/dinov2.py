@@ -52,12 +52,8 @@ class Block(nn.Module):
         self.ls2 = LayerScale(dim)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if torch.is_grad_enabled():
-            x = x + self.ls1(self.attn(self.norm1(x)))
-            return x + self.ls2(self.mlp(self.norm2(x)))
-        # inference: each residual branch scaled and added in one pass
-        x = torch.addcmul(x, self.attn(self.norm1(x)), self.ls1.gamma)
-        return torch.addcmul(x, self.mlp(self.norm2(x)), self.ls2.gamma)
+        x = self.ls1.residual(x, self.attn(self.norm1(x)))
+        return self.ls2.residual(x, self.mlp(self.norm2(x)))
 
 
 class DinoVisionTransformer(nn.Module):

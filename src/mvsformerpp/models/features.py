@@ -1,6 +1,6 @@
-"""Image features: the per-image part (DINOv2 taps, FPN encoder) and the multi-view part (SVA, FPN
-decoder, FMT). Splitting them lets inference compute each image's features once and reuse them for
-every reference view that uses the image.
+"""Image features: the per-image part (DINOv2 taps, FPN encoder) and the multi-view decoding (SVA, FPN
+decoder; the network then runs the FMT). Splitting them lets inference compute each image's features
+once and reuse them for every reference view that uses the image.
 """
 
 from __future__ import annotations
@@ -11,7 +11,6 @@ import torch
 import torch.nn.functional as F
 
 from mvsformerpp.models.dinov2 import DinoVisionTransformer
-from mvsformerpp.models.fmt import FMTWithPathway
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
 from mvsformerpp.models.sva import SideViewAttention
 
@@ -118,11 +117,3 @@ def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: Ima
         stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)
     return [s.reshape(B, V, *s.shape[1:]) for s in stages]
 
-
-def multiview_features(decoder_vit: SideViewAttention, decoder: FPNDecoder, fmt: FMTWithPathway,
-                       feats: ImageFeatures, B: int, V: int) -> list[torch.Tensor]:
-    """Fuse the views of each sample: :func:`decode_views`, then FMT + pathway (spec 1-3).
-
-    Returns 4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1).
-    """
-    return fmt(decode_views(decoder_vit, decoder, feats, B, V))

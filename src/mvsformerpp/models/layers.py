@@ -111,6 +111,12 @@ class LayerScale(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         return x * self.gamma
 
+    def residual(self, x: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
+        """x + self(branch); without autograd in one pass (addcmul), sparing the scaled branch."""
+        if torch.is_grad_enabled():
+            return x + self(branch)
+        return torch.addcmul(x, branch, self.gamma)
+
 
 class LayerNorm3D(nn.Module):
     """Channel-wise LayerNorm of a [B, C, D, H, W] volume (CVT patchify/unpatchify, spec 6.1)."""

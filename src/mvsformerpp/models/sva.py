@@ -60,12 +60,8 @@ class LinearAttentionBlock(nn.Module):
             k = v = q
         else:
             k = v = self.norm1(kv) if self.norm_kv else kv
-        if torch.is_grad_enabled():
-            x = x + self.ls1(self.attn(q, k, v))
-            return x + self.ls2(self.mlp(self.norm2(x)))
-        # inference: each residual branch scaled and added in one pass
-        x = torch.addcmul(x, self.attn(q, k, v), self.ls1.gamma)
-        return torch.addcmul(x, self.mlp(self.norm2(x)), self.ls2.gamma)
+        x = self.ls1.residual(x, self.attn(q, k, v))
+        return self.ls2.residual(x, self.mlp(self.norm2(x)))
 
 
 class SideViewAttention(nn.Module):

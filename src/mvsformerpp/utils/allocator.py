@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import ctypes
 import ctypes.util
+import os
 import sys
 
 # mallopt parameters (glibc malloc.h)
@@ -24,8 +25,6 @@ _M_MMAP_MAX = -4
 def tune_allocator() -> bool:
     """Keep freed memory for reuse instead of returning it to the OS. True where it took effect
     (glibc); elsewhere nothing changes. Environment settings of the same knobs are left alone."""
-    import os
-
     if not sys.platform.startswith("linux") or any(k in os.environ for k in ("MALLOC_MMAP_MAX_",
                                                                               "MALLOC_TRIM_THRESHOLD_")):
         return False
