@@ -50,13 +50,16 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
 
 
 def print_summary(summary: dict, out) -> None:
+    from mvsformerpp.viewer.folder import open_run
+    from mvsformerpp.viewer.report import collect, summary_lines
+
+    print("\n".join(summary_lines(collect(open_run(out)))))
     if summary["points"] is None:
-        print(f"{summary['views']} depth maps in {out} (no fusion; run 'mvsformerpp fuse {out}' to fuse them)")
+        print(f"no fusion: run 'mvsformerpp fuse {out}' to fuse the depth maps")
     else:
-        print(f"{summary['views']} depth maps and a fused cloud of {summary['points']} points in {out}")
-        print(f"  point cloud : {summary['outputs']['ply']}")
-    print(f"  depth images: {summary['outputs']['depth_vis']}")
-    print(f"  time        : {summary['timings']['total_s']:.1f} s")
+        print(f"point cloud : {summary['outputs']['ply']}")
+    print(f"depth images: {summary['outputs']['depth_vis']}")
+    print(f"report      : {summary['outputs']['report']}")
 
 
 def run(args: argparse.Namespace) -> int:

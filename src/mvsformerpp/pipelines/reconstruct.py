@@ -291,9 +291,14 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
         "checkpoint": config.checkpoint,
         "timings": {k: round(v, 3) for k, v in timings.items()},
         "feature_cache": cache_stats,
-        "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis")},
+        "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis"),
+                    "report": str(folder.root / "report.html")},
     }
     folder.write_json("summary.json", summary)
+    from mvsformerpp.viewer.report import write_report
+
+    with disk_full_guard(folder.root / "report.html"):
+        write_report(folder.root)
     return summary
 
 

@@ -41,6 +41,19 @@ def list_photos(folder: Path) -> list[str]:
     return sorted(p.name for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
 
 
+def write_sfm_report(model_dir: Path, photos: list[str], path: Path) -> dict:
+    """Write the outcome of SfM (registered and dropped photos, points, error, intrinsics) as JSON."""
+    import json
+
+    from mvsformerpp.io.colmap_model import read_model
+    from mvsformerpp.io.colmap_stats import model_statistics
+    from mvsformerpp.utils.atomic import atomic_write_text
+
+    stats = model_statistics(read_model(model_dir), photos)
+    atomic_write_text(path, json.dumps(stats, indent=2) + "\n")
+    return stats
+
+
 def _stage(progress, name: str) -> None:
     if progress is not None:
         progress.set_description(f"SfM: {name}")
@@ -112,6 +125,7 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False, max
             shutil.rmtree(best_dir)
         best_dir.mkdir()
         best.write(best_dir)
+        write_sfm_report(best_dir, photos, sfm_dir / "report.json")
         log.info("SfM registered %d of %d photos", best.num_reg_images(), len(photos))
         progress.update(1)
 

@@ -1,0 +1,112 @@
+"""The HTML report: content from the output folder, self-contained, rendered by a real browser."""
+
+import json
+import re
+import shutil
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mvsformerpp.cli import main
+from mvsformerpp.errors import InputError
+from mvsformerpp.utils.colormap import turbo
+from mvsformerpp.viewer.folder import open_run
+from mvsformerpp.viewer.report import collect, hatch, map_thumbnail, summary_lines, write_report
+
+
+def test_invalid_pixels_are_distinct_from_every_colour_of_the_scale():
+    depth = np.full((40, 50), 2.0, np.float32)
+    depth[:, :10] = 1.0  # the nearest valid depth: the scale's first colour
+    depth[:, 40:] = 0.0  # no depth
+    rgb = map_thumbnail(depth, 1.0, 3.0, depth > 0)
+    scale = turbo(np.linspace(0, 1, 1001)).astype(int)
+    invalid = rgb[:, 40:].reshape(-1, 3).astype(int)
+    # every invalid pixel is far from every colour of the scale (grey stripes vs a saturated map)
+    dist = np.abs(invalid[:, None, :] - scale[None]).sum(-1).min(1)
+    assert dist.min() > 60
+    assert (rgb[:, :10] == turbo(np.zeros(1))[0]).all()
+    assert len({tuple(c) for c in hatch((12, 12)).reshape(-1, 3)}) == 2
+
+
+def test_report_of_a_synthetic_run(synth_run, tmp_path, screenshot):
+    out = tmp_path / "out"
+    shutil.copytree(synth_run, out)
+    sfm = out / "sfm"
+    sfm.mkdir()
+    (sfm / "report.json").write_text(json.dumps({
+        "registered": 5, "photos": 6, "dropped": ["blurry_0007.jpg"], "points": 1234, "observations": 5000,
+        "mean_track_length": 4.05, "mean_reprojection_error": 0.61,
+        "cameras": [{"id": 1, "model": "SIMPLE_RADIAL", "width": 128, "height": 96,
+                     "params": {"f": 110.0, "cx": 64.0, "cy": 48.0, "k": 0.01}}]}))
+    path = write_report(out)
+    text = path.read_text()
+    # self-contained: nothing fetched from elsewhere, every image inlined
+    assert not re.search(r"""(src|href)\s*=\s*["'](?!data:)""", text)
+    assert "http://" not in text and "https://" not in text
+    assert text.count("data:image/") == 3 * 5  # photo, depth, confidence per view
+    facts = collect(open_run(out))
+    points = facts["points"]
+    assert points > 1000
+    for needle in (f"{points:,}", "blurry_0007.jpg", "5 of 6", "0.610 px", "SIMPLE_RADIAL", "photo_003.png",
+                   "long side 128 px", "scene units", "90% of pixels with depth"):
+        assert needle in text, needle
+    lines = summary_lines(facts)
+    assert len(lines) <= 8
+    assert any("registered 5 of 6 photos" in ln for ln in lines)
+    assert any(f"{points:,} points" in ln for ln in lines)
+
+    png = screenshot(path.as_uri(), tmp_path / "report.png")
+    shot = np.asarray(Image.open(png).convert("RGB")).astype(int)
+    assert shot.shape[0] >= 1000 and shot.std() > 20  # not a blank page
+    # the depth thumbnails are there: many saturated (colour-mapped) pixels, and the grey hatching
+    saturated = (shot.max(-1) - shot.min(-1)) > 120
+    assert saturated.mean() > 0.02
+    grey = np.all(shot == [150, 150, 150], -1) | np.all(shot == [215, 215, 215], -1)
+    assert grey.sum() > 5000  # hatched no-depth pixels, far more than the legend swatches
+
+
+def test_report_command_and_bad_folder(synth_run, tmp_path, capsys):
+    out = tmp_path / "out"
+    shutil.copytree(synth_run, out)
+    assert main(["report", str(out), "-o", str(tmp_path / "r.html")]) == 0
+    assert (tmp_path / "r.html").is_file() and not (out / "report.html").exists()
+    printed = capsys.readouterr().out
+    assert "fused cloud" in printed and "r.html" in printed
+    with pytest.raises(InputError, match="reconstruct INPUT -o OUT"):
+        write_report(tmp_path / "empty")
+    (tmp_path / "empty").mkdir()
+    assert main(["report", str(tmp_path / "empty")]) == 2
+    assert "mvsformerpp reconstruct" in capsys.readouterr().err
+
+
+def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys):
+    import dataclasses
+    import importlib.util
+    import sys
+    from pathlib import Path
+
+    from mvsformerpp.cli.reconstruct import print_summary
+    from mvsformerpp.pipelines.demo import temple_dir
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+
+    name = "recon_fake_model"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(
+            name, Path(__file__).resolve().parents[1] / "inference" / "fake_model.py")
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    cfg = ReconstructConfig(preset="lite", max_size=128, num_views=3, num_depth=32, cache_mb=64, max_images=3,
+                            fusion="none")
+    out = tmp_path / "out"
+    summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=sys.modules[name].FakeMVSModel())
+    text = (out / "report.html").read_text()
+    assert "templeSR0001" in text and text.count("data:image/") == 9
+    assert "none (fusion off)" in text
+    print_summary(summary, out)
+    printed = capsys.readouterr().out
+    assert "3 of 16 views" in printed and "long side 128 px" in printed and "report.html" in printed
+    assert len(printed.splitlines()) <= 10
+    cfg = dataclasses.replace(cfg, fusion="normal")
+    summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=sys.modules[name].FakeMVSModel())
+    assert f"{summary['points']:,}" in (out / "report.html").read_text()
