@@ -52,6 +52,12 @@ def test_photo_folder_runs_sfm_once_and_reconstructs(photos, tmp_path, monkeypat
     summary = reconstruct(photos, out, FAST, quiet=True, model=fake_model())
     assert (out / "sfm" / "DONE").is_file() and (out / "sfm" / "dense" / "sparse").is_dir()
     assert summary["views"] == 3
+    sfm_report = json.loads((out / "sfm" / "report.json").read_text())
+    assert sfm_report["photos"] == 16 and sfm_report["registered"] + len(sfm_report["dropped"]) == 16
+    assert sfm_report["points"] > 0 and 0 < sfm_report["mean_reprojection_error"] < 4
+    page = (out / "report.html").read_text()
+    assert f"<td>{sfm_report['registered']} of 16</td>" in page
+    assert all(name in page for name in sfm_report["dropped"])
     # Undistortion changes each photo's size slightly; depth maps follow the (undistorted) photo.
     for i in range(3):
         depth = read_pfm(out / "depth_est" / f"{i:08d}.pfm")
