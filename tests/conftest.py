@@ -62,3 +62,9 @@ def make_synth_run(root: Path, seed: int = 3, num_views: int = 5, height: int = 
 def synth_run(tmp_path_factory) -> Path:
     """One exact-depth output folder per test session (read-only for the tests: copy it to change it)."""
     return make_synth_run(tmp_path_factory.mktemp("synth_run"))
+
+
+@pytest.fixture
+def synth_run_factory():
+    """:func:`make_synth_run` for tests that need their own scene or settings."""
+    return make_synth_run

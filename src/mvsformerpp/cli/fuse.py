@@ -22,6 +22,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--disp", type=float, help="reprojection (normal) or disparity (gipuma) threshold")
     p.add_argument("--num-consistent", type=int, help="consistent source views needed")
     p.add_argument("--num-src-views", type=int, help="source views checked per reference view")
+    p.add_argument("--mask-dir", metavar="DIR",
+                   help="object masks: depths outside them are dropped before fusion (one per photo, named like "
+                        "it or by view index; DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
@@ -33,5 +36,5 @@ def run(args: argparse.Namespace) -> int:
 
     config = get_config(args.preset, conf_threshold=args.conf, disp_threshold=args.disp,
                         num_consistent=args.num_consistent, num_src_views=args.num_src_views)
-    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet)
+    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet, mask_dir=args.mask_dir)
     return 0

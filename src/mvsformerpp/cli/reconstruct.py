@@ -35,6 +35,9 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help="use only N overlapping views: the first view and its best neighbours")
     g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "none"), default=_DEFAULT.fusion,
                    help=f"fusion filter (default: {_DEFAULT.fusion}); 'none' writes the depth maps only")
+    g.add_argument("--mask-dir", metavar="DIR",
+                   help="object masks applied before fusion: one per photo, named like it or by view index "
+                        "(DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
                    help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
     g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
@@ -45,7 +48,7 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         preset=args.preset, checkpoint=args.checkpoint, device=args.device, precision=args.precision,
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
-        fusion=args.fusion, cache_mb=args.cache_mb,
+        fusion=args.fusion, cache_mb=args.cache_mb, mask_dir=args.mask_dir,
     )
 
 

@@ -65,12 +65,19 @@ def load_depth_folder(folder: str | Path):
 
 
 def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
-         device: str = "cpu", quiet: bool = False) -> Path:
-    """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path."""
+         device: str = "cpu", quiet: bool = False, mask_dir: str | Path | None = None,
+         normals: bool = True) -> Path:
+    """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path.
+
+    ``mask_dir``: object masks (:mod:`mvsformerpp.io.masks`); depths outside them are dropped before
+    fusion. ``normals``: store per-point normals from the depth maps (:mod:`mvsformerpp.fusion.normals`).
+    """
     folder = Path(folder)
     out_ply = Path(out_ply) if out_ply is not None else folder / "fused.ply"
     config = config or FusionConfig()
     scene, depths, confs, images = load_depth_folder(folder)
+    if mask_dir is not None:
+        depths = apply_masks(folder, scene, depths, mask_dir)
     t0 = time.perf_counter()
     with tqdm(total=len(scene), desc=f"Fusion ({config.method})", unit="view", disable=quiet) as bar:
         xyz, rgb = fuse_depth_maps(scene, depths, confs, images, config, device, progress=lambda r: bar.update(1))
@@ -80,7 +87,26 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
             f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
             "--num-consistent 1 or --fusion dynamic); "
             "writing an empty point cloud", stacklevel=2)
-    write_ply(out_ply, xyz, rgb)
+    point_normals = None
+    if normals:
+        from mvsformerpp.fusion import make_views
+        from mvsformerpp.fusion.normals import point_normals as normals_of
+
+        point_normals = normals_of(xyz, make_views(scene, depths, None, images, device))
+    write_ply(out_ply, xyz, rgb, normals=point_normals)
     if not quiet:
         print(f"{len(xyz):,} points in {time.perf_counter() - t0:.1f} s -> {out_ply}")
     return out_ply
+
+
+def apply_masks(folder: Path, scene, depths: list[np.ndarray], mask_dir: str | Path) -> list[np.ndarray]:
+    """Depth maps with 0 outside the object masks (matched to the views by the photos' original names)."""
+    import json
+
+    from mvsformerpp.io.masks import load_masks
+
+    names_file = folder / "views.json"
+    original = json.loads(names_file.read_text()) if names_file.is_file() else {}
+    names = [original.get(v.name, v.image_path.name) for v in scene.views]
+    masks = load_masks(mask_dir, names, [d.shape for d in depths])
+    return [np.where(m, d, 0).astype(d.dtype) for m, d in zip(masks, depths)]

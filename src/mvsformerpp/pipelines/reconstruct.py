@@ -60,6 +60,8 @@ class ReconstructConfig:
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
     fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
     """Fusion filter (``mvsformerpp.fusion``); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
+    mask_dir: str | None = None
+    """Object masks applied before fusion (:mod:`mvsformerpp.io.masks` layouts); None = no masks."""
     cache_mb: int = 2048
     """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
     seed: int = 0
@@ -82,7 +84,7 @@ class ReconstructConfig:
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""
         d = dataclasses.asdict(self)
-        for k in ("device", "memory_gb", "cache_mb", "fusion"):
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "mask_dir"):
             d.pop(k)
         return d
 
@@ -227,6 +229,10 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     fingerprint = scene_fingerprint(full)
     folder.check_scene(fingerprint)
     scene = prepare_scene(full, config)
+    if config.mask_dir is not None:  # bad masks fail now, not after the depth maps
+        from mvsformerpp.io.masks import load_masks
+
+        load_masks(config.mask_dir, [v.name for v in scene.views], [(v.height, v.width) for v in scene.views])
     timings["input_s"] = time.perf_counter() - t0
 
     device = _device(config.device)
@@ -272,10 +278,11 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     ply = folder.root / "fused.ply"
     points = None
     if config.fusion != "none":
-        fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
+        fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene),
+                                      **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir else {})})
         if not folder.fusion_done(fusion_state):
             with disk_full_guard(ply):
-                _run_fusion(folder.root, ply, config.fusion, quiet)
+                _run_fusion(folder.root, ply, config.fusion, quiet, config.mask_dir)
             folder.mark_fusion(fusion_state)
         from mvsformerpp.io.ply import ply_points, read_ply
 
@@ -320,10 +327,10 @@ def _fusion_config(name: str):
     return get(name) if callable(get) else name
 
 
-def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool) -> None:
+def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, mask_dir: str | None = None) -> None:
     import inspect
 
     from mvsformerpp.pipelines.fuse import fuse
 
     kwargs = {"quiet": quiet} if "quiet" in inspect.signature(fuse).parameters else {}
-    fuse(folder, ply, _fusion_config(name), **kwargs)
+    fuse(folder, ply, _fusion_config(name), mask_dir=mask_dir, **kwargs)
