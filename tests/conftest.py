@@ -68,3 +68,9 @@ def synth_run(tmp_path_factory) -> Path:
 def synth_run_factory():
     """:func:`make_synth_run` for tests that need their own scene or settings."""
     return make_synth_run
+
+
+@pytest.fixture(scope="session")
+def exact_synth_run(tmp_path_factory) -> Path:
+    """An output folder whose every pixel has its exact depth (no holes), fused; read-only for the tests."""
+    return make_synth_run(tmp_path_factory.mktemp("exact_run"), seed=5, height=120, width=160, holes=False)

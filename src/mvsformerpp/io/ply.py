@@ -7,6 +7,7 @@ when they follow the vertices. Points are float coordinates ``x, y, z`` plus opt
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import numpy as np
@@ -30,11 +31,13 @@ def write_ply(
     rgb: np.ndarray | None = None,
     normals: np.ndarray | None = None,
     extra: dict[str, np.ndarray] | None = None,
+    faces: np.ndarray | None = None,
 ) -> None:
-    """Write a binary little-endian PLY point cloud atomically.
+    """Write a binary little-endian PLY point cloud (or mesh, with ``faces``) atomically.
 
     xyz: [N,3] (stored as float32); rgb: [N,3] uint8 or floats in [0,1]; normals: [N,3];
-    extra: name -> [N] scalar arrays (e.g. ``confidence``), stored with their own dtype.
+    extra: name -> [N] scalar arrays (e.g. ``confidence``), stored with their own dtype;
+    faces: [M,3] vertex indices of triangles (a ``face`` element with ``vertex_indices`` lists).
     """
     xyz = np.asarray(xyz)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
@@ -65,10 +68,20 @@ def write_ply(
     header = ["ply", "format binary_little_endian 1.0", "comment written by mvsformerpp", f"element vertex {n}"]
     for name, dt, _ in fields:
         header.append(f"property {_NUMPY_TO_PLY[dt.str[1:]]} {name}")
+    tris = None
+    if faces is not None:
+        faces = np.asarray(faces)
+        if faces.ndim != 2 or faces.shape[1] != 3:
+            raise ValueError(f"faces must be [M,3], got {faces.shape}")
+        tris = np.empty(len(faces), dtype=[("n", "u1"), ("v", "<i4", (3,))])
+        tris["n"], tris["v"] = 3, faces
+        header += [f"element face {len(faces)}", "property list uchar int vertex_indices"]
     header.append("end_header")
     with atomic_open(path, "wb") as f:
         f.write(("\n".join(header) + "\n").encode("ascii"))
         f.write(data.tobytes())
+        if tris is not None:
+            f.write(tris.tobytes())
 
 
 def read_ply(path: str | Path) -> dict[str, np.ndarray]:
@@ -145,6 +158,26 @@ def _read_ascii(body: bytes, elements, vertex_idx: int, path: Path) -> dict[str,
     except ValueError as e:
         raise FormatError(f"bad number in ASCII PLY vertex data ({e})", path) from e
     return {p[0]: table[:, j].astype(_PLY_TYPES[p[2]]) for j, p in enumerate(props)}
+
+
+def read_ply_faces(path: str | Path) -> np.ndarray:
+    """Triangles [M,3] of a binary little-endian PLY mesh whose ``face`` element follows the vertices
+    (as :func:`write_ply` writes it, with ``uchar`` counts and ``int`` indices)."""
+    path = Path(path)
+    raw = path.read_bytes()
+    body = raw.index(b"\n", raw.find(b"end_header")) + 1
+    header = raw[:body].decode("ascii", errors="replace")
+    m = re.search(r"element face (\d+)\s+property list uchar u?int\S* vertex_ind\w+", header)
+    if "binary_little_endian" not in header or m is None:
+        raise FormatError("not a binary little-endian PLY mesh with triangle lists after the vertices", path)
+    vertex = read_ply(path)
+    n = len(next(iter(vertex.values())))
+    vsize = sum(arr.dtype.itemsize for arr in vertex.values())
+    count = int(m.group(1))
+    tris = np.frombuffer(raw, dtype=[("n", "u1"), ("v", "<i4", (3,))], count=count, offset=body + n * vsize)
+    if count and (tris["n"] != 3).any():
+        raise FormatError("the mesh has faces that are not triangles", path)
+    return tris["v"].astype(np.int64)
 
 
 def ply_points(vertex: dict[str, np.ndarray], path: str | Path | None = None) -> np.ndarray:

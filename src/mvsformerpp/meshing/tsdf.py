@@ -1,0 +1,115 @@
+"""Confidence-weighted TSDF integration of depth maps (PyTorch, on the caller's device).
+
+Curless and Levoy (SIGGRAPH 1996), as KinectFusion and Open3D's ScalableTSDFVolume run it: every
+voxel centre is projected into each view; where the view has a depth ``d`` at that pixel and the
+voxel's z-depth ``z`` satisfies ``d - z > -truncation``, the truncated signed distance
+``clamp((d - z) / truncation, -1, 1)`` joins the voxel's running mean with the pixel's confidence as
+weight (positive = in front of the surface). Colours are averaged the same way near the surface
+(``|d - z| < truncation``). The zero level set, extracted with marching cubes
+(:mod:`mvsformerpp.meshing.extract`), is the surface.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.fusion.core import FusionView
+from mvsformerpp.geometry.camera import depth_to_points, project
+
+
+@dataclass(frozen=True)
+class TSDFConfig:
+    """Settings of :func:`integrate`."""
+
+    voxel: float | None = None
+    """Voxel edge in scene units; None = the scene box's longest side / ``resolution``."""
+    resolution: int = 256
+    """Voxels along the longest side of the scene box when ``voxel`` is None."""
+    truncation: float = 4.0
+    """Truncation distance in voxels (the band around the surface that a depth sample updates)."""
+    min_confidence: float = 0.0
+    """Depth pixels at or below this confidence are ignored (others weigh by their confidence)."""
+    max_voxels: int = 400_000_000
+    """Refuse grids larger than this (memory: about 20 bytes per voxel)."""
+    chunk: int = 1 << 21
+    """Voxels projected at once."""
+
+
+@dataclass
+class TSDFVolume:
+    """The integrated grid: voxel (i, j, k) has its centre at ``origin + (i + 0.5, j + 0.5, k + 0.5) * voxel``."""
+
+    tsdf: torch.Tensor  # [X, Y, Z] in [-1, 1] (truncation units), 1 where never updated
+    weight: torch.Tensor  # [X, Y, Z] summed confidences
+    color: torch.Tensor  # [X, Y, Z, 3] mean colour in [0, 255]
+    origin: np.ndarray  # [3]
+    voxel: float
+
+
+def scene_box(views: list[FusionView], percentile: float = 0.5, stride: int = 4) -> tuple[np.ndarray, np.ndarray]:
+    """Bounding box of the depth maps' points (every ``stride``-th pixel, robust ``percentile`` ends)."""
+    pts = []
+    for v in views:
+        P = depth_to_points(v.depth, v.K, v.E)[::stride, ::stride]
+        ok = v.depth[::stride, ::stride] > 0
+        pts.append(P[ok].cpu())
+    if not pts or sum(len(p) for p in pts) == 0:
+        raise InputError("the depth maps hold no depth at all: nothing to mesh")
+    allp = torch.cat(pts).double().numpy()
+    return np.percentile(allp, percentile, axis=0), np.percentile(allp, 100 - percentile, axis=0)
+
+
+def integrate(views: list[FusionView], config: TSDFConfig = TSDFConfig(), progress=None) -> TSDFVolume:
+    """Integrate the views' depth maps (confidence as weight) into a TSDF grid over their box."""
+    lo, hi = scene_box(views)
+    voxel = config.voxel or float((hi - lo).max()) / config.resolution
+    if voxel <= 0:
+        raise InputError(f"--voxel must be positive, got {voxel}")
+    trunc = config.truncation * voxel
+    lo, hi = lo - trunc, hi + trunc
+    dims = np.maximum(np.ceil((hi - lo) / voxel).astype(np.int64), 2)
+    if int(np.prod(dims)) > config.max_voxels:
+        raise InputError(f"a {dims[0]}x{dims[1]}x{dims[2]} voxel grid is too large at --voxel {voxel:.4g}; "
+                         f"use a larger voxel (at least {voxel * (np.prod(dims) / config.max_voxels) ** (1 / 3):.4g})")
+    device = views[0].depth.device
+    n = int(np.prod(dims))
+    tsdf = torch.ones(n, device=device)
+    weight = torch.zeros(n, device=device)
+    color = torch.zeros((n, 3), device=device)  # confidence-weighted sums, divided at the end
+    color_weight = torch.zeros(n, device=device)
+    origin = torch.as_tensor(lo, dtype=torch.float32, device=device)
+    for view in views:
+        H, W = view.depth.shape
+        K, E = view.K.float(), view.E.float()
+        depth = torch.where(view.confidence > config.min_confidence, view.depth, torch.zeros_like(view.depth))
+        for s in range(0, n, config.chunk):
+            idx = torch.arange(s, min(s + config.chunk, n), device=device)
+            ijk = torch.stack((idx // (dims[1] * dims[2]), (idx // dims[2]) % dims[1], idx % dims[2]), 1)
+            X = origin + (ijk.float() + 0.5) * voxel
+            u, v, z = project(K, E, X)
+            inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
+            ui, vi = u.clamp(0, W - 1).long(), v.clamp(0, H - 1).long()
+            d = depth[vi, ui]
+            sdf = d - z
+            upd = inside & (d > 0) & (sdf > -trunc)
+            if not upd.any():
+                continue
+            i, sdf, pix = idx[upd], sdf[upd], (vi * W + ui)[upd]
+            w = view.confidence.reshape(-1)[pix].clamp(min=1e-3)
+            t = (sdf / trunc).clamp(-1.0, 1.0)
+            w0 = weight[i]
+            tsdf[i] = (tsdf[i] * w0 + t * w) / (w0 + w)
+            weight[i] = w0 + w
+            near = sdf.abs() < trunc
+            j, wn = i[near], w[near]
+            color[j] += view.image.reshape(-1, 3)[pix[near]].float() * wn[:, None]
+            color_weight[j] += wn
+        if progress is not None:
+            progress()
+    color /= color_weight.clamp(min=1e-12)[:, None]
+    shape = tuple(int(x) for x in dims)
+    return TSDFVolume(tsdf.reshape(shape), weight.reshape(shape), color.reshape(*shape, 3), lo, voxel)

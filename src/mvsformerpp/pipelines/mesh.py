@@ -1,0 +1,88 @@
+"""``mesh``: a triangle mesh from a reconstruction's depth maps (TSDF) or fused cloud (screened Poisson).
+
+* ``tsdf``: the depth maps in ``OUT/depth_est`` (confidence as weight) integrated into a voxel grid on
+  the chosen device (:mod:`mvsformerpp.meshing.tsdf`), the zero level set extracted with marching cubes;
+  coloured from the photos. Keeps thin structures that fusion filters keep, fills nothing.
+* ``poisson``: screened Poisson on ``OUT/fused.ply`` with its normals (:mod:`mvsformerpp.meshing.poisson`);
+  smooth and closed (``watertight``) or trimmed where no sample supports it.
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Literal
+
+import numpy as np
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.meshing.extract import Mesh
+from mvsformerpp.meshing.poisson import PoissonConfig
+from mvsformerpp.meshing.tsdf import TSDFConfig
+
+
+@dataclass(frozen=True)
+class MeshConfig:
+    """Settings of :func:`make_mesh`."""
+
+    method: Literal["tsdf", "poisson"] = "tsdf"
+    """tsdf: depth maps -> voxel grid -> marching cubes; poisson: fused oriented cloud -> screened Poisson."""
+    tsdf: TSDFConfig = TSDFConfig()
+    """TSDF settings (voxel size, truncation, confidence floor)."""
+    poisson: PoissonConfig = PoissonConfig()
+    """Poisson settings (octree depth, watertight, trimming)."""
+    device: str = "cpu"
+    """torch device of the TSDF integration (``cuda`` where there is one)."""
+
+
+def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = MeshConfig(), quiet: bool = False) -> Mesh:
+    """Mesh the reconstruction in ``folder`` and write it to ``out_ply`` (binary PLY with vertex colours)."""
+    from mvsformerpp.io.ply import write_ply
+
+    folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", folder)
+    t0 = time.perf_counter()
+    mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config)
+    if len(mesh.faces) == 0:
+        raise InputError("the mesh came out empty: the depth maps agree nowhere; check them in report.html", folder)
+    write_ply(out_ply, mesh.vertices, mesh.colors, faces=mesh.faces)
+    if not quiet:
+        print(f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} triangles ({config.method}) in "
+              f"{time.perf_counter() - t0:.1f} s -> {out_ply}")
+    return mesh
+
+
+def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
+    from tqdm import tqdm
+
+    from mvsformerpp.fusion import make_views
+    from mvsformerpp.meshing.extract import marching_cubes
+    from mvsformerpp.meshing.tsdf import integrate
+    from mvsformerpp.pipelines.fuse import load_depth_folder
+
+    if not (folder / "cams").is_dir() or not (folder / "depth_est").is_dir():
+        raise InputError("no depth maps here (cams/ and depth_est/); make them with "
+                         "`mvsformerpp reconstruct INPUT -o OUT`", folder)
+    scene, depths, confs, images = load_depth_folder(folder)
+    views = make_views(scene, depths, confs, images, config.device)
+    with tqdm(total=len(views), desc="TSDF", unit="view", disable=quiet) as bar:
+        volume = integrate(views, config.tsdf, progress=lambda: bar.update(1))
+    return marching_cubes(volume)
+
+
+def _poisson_mesh(folder: Path, config: MeshConfig) -> Mesh:
+    from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
+    from mvsformerpp.meshing.poisson import screened_poisson
+
+    ply = folder / "fused.ply"
+    if not ply.is_file():
+        raise InputError("no fused cloud (fused.ply); make it with `mvsformerpp fuse OUT` "
+                         "(or `mvsformerpp reconstruct INPUT -o OUT` with fusion on)", folder)
+    vertex = read_ply(ply)
+    if not all(k in vertex for k in ("nx", "ny", "nz")):
+        raise InputError("fused.ply has no normals (an older fusion); run `mvsformerpp fuse OUT` again to add "
+                         "them", ply)
+    normals = np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1)
+    return screened_poisson(ply_points(vertex, ply), normals, ply_colors(vertex), config.poisson)

@@ -1,0 +1,89 @@
+"""Meshes of exact synthetic depth maps lie on the true surface (precision and recall against GT points)."""
+
+import numpy as np
+import pytest
+
+from mvsformerpp.cli import main
+from mvsformerpp.errors import InputError
+from mvsformerpp.evaluation.cloud import evaluate_clouds
+from mvsformerpp.io.mvsnet import load_mvsnet_scene
+from mvsformerpp.io.pfm import read_pfm
+from mvsformerpp.io.ply import ply_colors, ply_points, read_ply, read_ply_faces
+
+pytest.importorskip("skimage", reason="the mesh extra (scikit-image) is not installed")
+
+
+@pytest.fixture
+def exact_run(exact_synth_run):
+    return exact_synth_run
+
+
+def surface_samples(vertices, faces, n, seed=0):
+    """Area-weighted random points on the triangles."""
+    a, b, c = (vertices[faces[:, k]].astype(np.float64) for k in range(3))
+    area = 0.5 * np.linalg.norm(np.cross(b - a, c - a), axis=1)
+    rng = np.random.default_rng(seed)
+    pick = rng.choice(len(faces), n, p=area / area.sum())
+    r1, r2 = rng.random((2, n, 1))
+    s = np.sqrt(r1)
+    return (1 - s) * a[pick] + s * (1 - r2) * b[pick] + s * r2 * c[pick]
+
+
+def scene_depth(run):
+    return float(np.median(np.concatenate([read_pfm(p)[read_pfm(p) > 0] for p in (run / "depth_est").glob("*.pfm")])))
+
+
+def mesh_quality(run, ply):
+    verts = ply_points(read_ply(ply))
+    faces = read_ply_faces(ply)
+    gt = ply_points(read_ply(run.parent / "scene" / "gt_surface.ply"))
+    pred = surface_samples(verts, faces, 100_000)
+    return evaluate_clouds(pred, gt, 0.01 * scene_depth(run)), verts, faces
+
+
+def test_tsdf_mesh_lies_on_the_true_surface(exact_run, tmp_path):
+    out = tmp_path / "tsdf.ply"
+    assert main(["mesh", str(exact_run), "-o", str(out), "--resolution", "200", "--quiet"]) == 0
+    m, verts, faces = mesh_quality(exact_run, out)
+    assert m.precision >= 0.9 and m.recall >= 0.9, m
+    # faces turn their front to the cameras (marching cubes winding: towards free space)
+    a, b, c = (verts[faces[:, k]] for k in range(3))
+    n = np.cross(b - a, c - a)
+    centres = np.stack([v.center for v in load_mvsnet_scene(exact_run).views])
+    assert ((n * (centres.mean(0) - (a + b + c) / 3)).sum(1) > 0).mean() > 0.9
+    colors = ply_colors(read_ply(out))
+    assert colors is not None and colors.std() > 10
+
+
+def test_poisson_watertight_closed_object():
+    pytest.importorskip("pymeshlab", reason="the mesh extra (pymeshlab) is not installed")
+    from mvsformerpp.meshing.poisson import PoissonConfig, screened_poisson
+
+    rng = np.random.default_rng(0)
+    n = rng.normal(size=(20_000, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    centre = np.array([1.0, -2.0, 5.0])
+    mesh = screened_poisson(centre + 2 * n, n, None, PoissonConfig(depth=6, watertight=True))
+    edges = np.sort(np.concatenate([mesh.faces[:, [0, 1]], mesh.faces[:, [1, 2]], mesh.faces[:, [2, 0]]]), axis=1)
+    _, counts = np.unique(edges, axis=0, return_counts=True)
+    assert len(mesh.faces) > 1000 and (counts == 2).all()  # every edge between two triangles: closed
+    radius = np.linalg.norm(mesh.vertices - centre, axis=1)
+    assert np.abs(radius - 2).max() < 0.02 * 2
+
+
+def test_poisson_mesh_lies_on_the_true_surface(exact_run, tmp_path):
+    pytest.importorskip("pymeshlab", reason="the mesh extra (pymeshlab) is not installed")
+    out = tmp_path / "poisson.ply"
+    assert main(["mesh", str(exact_run), "-o", str(out), "--method", "poisson", "--depth", "8", "--quiet"]) == 0
+    m, _, _ = mesh_quality(exact_run, out)
+    assert m.precision >= 0.9 and m.recall >= 0.9, m
+
+
+def test_folders_without_depth_maps_or_cloud(tmp_path, exact_run, capsys):
+    from mvsformerpp.pipelines.mesh import make_mesh
+
+    with pytest.raises(InputError, match="mvsformerpp reconstruct INPUT -o OUT"):
+        make_mesh(tmp_path, tmp_path / "m.ply")
+    assert main(["mesh", str(tmp_path), "-o", str(tmp_path / "m.ply"), "--method", "poisson"]) == 2
+    assert "mvsformerpp fuse OUT" in capsys.readouterr().err
+    assert not (tmp_path / "m.ply").exists()
