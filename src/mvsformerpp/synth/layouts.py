@@ -73,12 +73,19 @@ def _box(rng, center, half, yaw, **kw) -> Surface:
 
 
 # ------------------------------------------------------------------------------------------- cameras
-def _intrinsics(rng: np.random.Generator, width: int, height: int) -> np.ndarray:
-    fov = np.deg2rad(rng.uniform(45, 75))
+def _intrinsics(rng: np.random.Generator, width: int, height: int, fov_deg=(22, 75)) -> np.ndarray:
+    """Horizontal field of view from telephoto-like (DTU, Middlebury: 25-35 degrees) to phone-wide."""
+    fov = np.deg2rad(rng.uniform(*fov_deg))
     f = width / 2 / np.tan(fov / 2)
     cx = width / 2 + rng.uniform(-0.03, 0.03) * width
     cy = height / 2 + rng.uniform(-0.03, 0.03) * height
     return np.array([[f, 0, cx], [0, f * rng.uniform(0.995, 1.005), cy], [0, 0, 1.0]])
+
+
+def _framing_distance(rng: np.random.Generator, K: np.ndarray, half_extent: float) -> float:
+    """Distance at which an object of ``half_extent`` fills about a third to two thirds of the image width."""
+    width = 2 * K[0, 2]
+    return half_extent * 2 * K[0, 0] / width * np.exp(rng.uniform(np.log(1.5), np.log(3.0)))
 
 
 def _pose(center: np.ndarray, target: np.ndarray, roll: float) -> tuple[np.ndarray, np.ndarray]:
@@ -132,9 +139,10 @@ def _table(rng, n_views, K, n_objects):
     hx, hy = rng.uniform(0.7, 1.4, 2)
     surfaces.append(_box(rng, (0, 0, -0.04), (hx, hy, 0.04), rng.uniform(0, np.pi), flat_p=0.1))
     surfaces.append(_material(rng, Plane(np.array([0, 0, 1.0]), -0.75), 3.0))
-    for axis, sign in ((0, -1), (1, rng.choice([-1, 1]))):  # two walls behind the table
+    radius = _framing_distance(rng, K, 0.45)
+    for axis, sign in ((0, -1), (1, rng.choice([-1, 1]))):  # two walls, beyond the cameras
         normal = np.eye(3)[axis]
-        surfaces.append(_material(rng, Plane(normal, sign * rng.uniform(2.3, 4.0)), 3.0))  # beyond the cameras
+        surfaces.append(_material(rng, Plane(normal, sign * (radius + rng.uniform(0.3, 2.5))), 3.0))
     n = n_objects if n_objects is not None else int(rng.integers(2, 7))
     for _ in range(n):
         x, y = rng.uniform(-0.5, 0.5, 2)
@@ -152,7 +160,7 @@ def _table(rng, n_views, K, n_objects):
             surfaces.append(_material(rng, Cylinder(np.array([x, y]), size * 0.7, base, size * rng.uniform(1, 4)),
                                       2 * size))
     target = np.array([0, 0, 0.1]) + rng.normal(0, 0.05, 3)
-    centers, targets = _ring(rng, n_views, target, rng.uniform(0.9, 2.0), rng.uniform(15, 50),
+    centers, targets = _ring(rng, n_views, target, radius, rng.uniform(15, 50),
                              rng.uniform(5, 15) * rng.choice([-1, 1]), 0.05)
     return surfaces, centers, targets
 
@@ -185,7 +193,8 @@ def _ring_object(rng, n_views, K, n_objects):
     if not void:
         surfaces.append(_material(rng, Plane(np.array([0, 0, 1.0]), 0.0), 2.0))
     target = np.array([0, 0, top / 2]) + rng.normal(0, 0.02, 3)
-    centers, targets = _ring(rng, n_views, target, rng.uniform(0.6, 1.3), rng.uniform(10, 45),
+    centers, targets = _ring(rng, n_views, target, _framing_distance(rng, K, max(w * 1.3, top / 2)),
+                             rng.uniform(10, 45),
                              rng.uniform(10, 25) * rng.choice([-1, 1]), 0.02)
     return surfaces, centers, targets, void, plaster
 
@@ -193,10 +202,10 @@ def _ring_object(rng, n_views, K, n_objects):
 def _room(rng, n_views, K, n_objects):
     sx, sy, sz = rng.uniform(3, 7), rng.uniform(3, 6), rng.uniform(2.4, 3.2)
     surfaces = [_material(rng, Plane(np.array([0, 0, 1.0]), 0.0), 2.0, flat_p=0.05),
-                _material(rng, Plane(np.array([0, 0, 1.0]), sz), 2.0, flat_p=0.5)]
+                _material(rng, Plane(np.array([0, 0, 1.0]), sz), 2.0, flat_p=0.3)]
     for axis, half in ((0, sx / 2), (1, sy / 2)):
         for sign in (-1, 1):
-            surfaces.append(_material(rng, Plane(np.eye(3)[axis], sign * half), 2.0, flat_p=0.35))
+            surfaces.append(_material(rng, Plane(np.eye(3)[axis], sign * half), 2.0, flat_p=0.12))
     n = n_objects if n_objects is not None else int(rng.integers(3, 9))
     for _ in range(n):
         kind = rng.choice(["furniture", "furniture", "item", "picture"])
