@@ -74,3 +74,17 @@ def synth_run_factory():
 def exact_synth_run(tmp_path_factory) -> Path:
     """An output folder whose every pixel has its exact depth (no holes), fused; read-only for the tests."""
     return make_synth_run(tmp_path_factory.mktemp("exact_run"), seed=5, height=120, width=160, holes=False)
+
+
+@pytest.fixture
+def fake_network():
+    """A new instance of the stand-in network of ``tests/inference/fake_model.py`` (exact plane depths)."""
+    import importlib.util
+    import sys
+
+    name = "recon_fake_model"
+    if name not in sys.modules:
+        spec = importlib.util.spec_from_file_location(name, Path(__file__).parent / "inference" / "fake_model.py")
+        sys.modules[name] = importlib.util.module_from_spec(spec)
+        spec.loader.exec_module(sys.modules[name])
+    return sys.modules[name].FakeMVSModel

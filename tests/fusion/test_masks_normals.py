@@ -70,3 +70,6 @@ def test_fused_cloud_has_unit_normals_facing_the_cameras(synth_run):
     # every normal faces the camera centroid side: the views look at the scene from one side
     toward = ((centres.mean(0) - xyz) * nrm).sum(1)
     assert (toward[length > 0.5] > 0).mean() > 0.97
+    # per-point confidence: the mean of the seeing views' confidences (0.95 .. 0.35 across each image)
+    conf = ply["confidence"]
+    assert ((conf >= 0.35 - 1e-5) & (conf <= 0.95 + 1e-5)).all() and conf.std() > 0.05

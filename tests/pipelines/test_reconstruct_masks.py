@@ -1,9 +1,6 @@
 """``reconstruct --mask-dir``: masks checked before any depth map, applied in fusion."""
 
 import dataclasses
-import importlib.util
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -18,17 +15,7 @@ CFG = ReconstructConfig(preset="lite", max_size=128, num_views=3, num_depth=32, 
                         fusion="normal")
 
 
-def fake_model():
-    name = "recon_fake_model"
-    if name not in sys.modules:
-        path = Path(__file__).resolve().parents[1] / "inference" / "fake_model.py"
-        spec = importlib.util.spec_from_file_location(name, path)
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
-    return sys.modules[name].FakeMVSModel()
-
-
-def test_masks_of_the_wrong_size_fail_before_the_depth_maps(tmp_path):
+def test_masks_of_the_wrong_size_fail_before_the_depth_maps(tmp_path, fake_network):
     masks = tmp_path / "masks"
     masks.mkdir()
     for i in range(1, 17):
@@ -36,20 +23,20 @@ def test_masks_of_the_wrong_size_fail_before_the_depth_maps(tmp_path):
     out = tmp_path / "out"
     with pytest.raises(FormatError, match="mask is 100x100 but its image is 640x480"):
         reconstruct(temple_dir(), out, dataclasses.replace(CFG, mask_dir=str(masks)), quiet=True,
-                    model=fake_model())
+                    model=fake_network())
     assert not (out / "depth_est").exists()
 
 
 @pytest.mark.slow
-def test_masked_reconstruct_keeps_fewer_points(tmp_path):
+def test_masked_reconstruct_keeps_fewer_points(tmp_path, fake_network):
     masks = tmp_path / "masks"
     masks.mkdir()
     for i in range(1, 17):  # keep the left half of every photo
         a = np.zeros((480, 640), np.uint8)
         a[:, :320] = 255
         Image.fromarray(a).save(masks / f"templeSR{i:04d}.png")
-    full = reconstruct(temple_dir(), tmp_path / "a", CFG, quiet=True, model=fake_model())
+    full = reconstruct(temple_dir(), tmp_path / "a", CFG, quiet=True, model=fake_network())
     masked = reconstruct(temple_dir(), tmp_path / "b", dataclasses.replace(CFG, mask_dir=str(masks)), quiet=True,
-                         model=fake_model())
+                         model=fake_network())
     assert 0 < masked["points"] < 0.7 * full["points"]
     assert len(ply_points(read_ply(tmp_path / "b" / "fused.ply"))) == masked["points"]

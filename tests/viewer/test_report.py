@@ -80,26 +80,17 @@ def test_report_command_and_bad_folder(synth_run, tmp_path, capsys):
     assert "mvsformerpp reconstruct" in capsys.readouterr().err
 
 
-def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys):
+def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys, fake_network):
     import dataclasses
-    import importlib.util
-    import sys
-    from pathlib import Path
 
     from mvsformerpp.cli.reconstruct import print_summary
     from mvsformerpp.pipelines.demo import temple_dir
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
-    name = "recon_fake_model"
-    if name not in sys.modules:
-        spec = importlib.util.spec_from_file_location(
-            name, Path(__file__).resolve().parents[1] / "inference" / "fake_model.py")
-        sys.modules[name] = importlib.util.module_from_spec(spec)
-        spec.loader.exec_module(sys.modules[name])
     cfg = ReconstructConfig(preset="lite", max_size=128, num_views=3, num_depth=32, cache_mb=64, max_images=3,
                             fusion="none")
     out = tmp_path / "out"
-    summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=sys.modules[name].FakeMVSModel())
+    summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=fake_network())
     text = (out / "report.html").read_text()
     assert "templeSR0001" in text and text.count("data:image/") == 9
     assert "none (fusion off)" in text
@@ -108,5 +99,5 @@ def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys):
     assert "3 of 16 views" in printed and "long side 128 px" in printed and "report.html" in printed
     assert len(printed.splitlines()) <= 10
     cfg = dataclasses.replace(cfg, fusion="normal")
-    summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=sys.modules[name].FakeMVSModel())
+    summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=fake_network())
     assert f"{summary['points']:,}" in (out / "report.html").read_text()

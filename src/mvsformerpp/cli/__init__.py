@@ -13,7 +13,8 @@ import sys
 from mvsformerpp.errors import MVSFormerError
 
 # Subcommand modules, in the order `--help` lists them.
-COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "mesh", "report", "evaluate", "info", "synth")
+COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "mesh", "export", "report", "view", "evaluate", "info",
+                             "synth")
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -4,7 +4,8 @@ A depth map's normal at a pixel is the cross product of the central differences 
 neighbours (pixel centres, :func:`mvsformerpp.geometry.camera.depth_to_points`), turned towards the camera;
 pixels at a depth edge (neighbours more than ``edge`` relative depth apart) or next to a missing depth
 get none. A fused point takes the normalised sum of the normals of the views whose depth map sees it
-(projected depth within ``tolerance`` relative of the map's depth there).
+(projected depth within ``tolerance`` relative of the map's depth there), and the mean confidence of
+those views' pixels (what a viewer's confidence slider filters on).
 """
 
 from __future__ import annotations
@@ -33,13 +34,16 @@ def normal_map(depth: torch.Tensor, K: torch.Tensor, edge: float = 0.05) -> torc
     return torch.where(ok[..., None], n / norm.clamp(min=1e-30), torch.zeros_like(n))
 
 
-def point_normals(points: np.ndarray, views: list[FusionView], tolerance: float = 0.01,
-                  chunk: int = 1 << 21) -> np.ndarray:
-    """World-frame unit normals ``[N, 3]`` float32 of fused points from the views' depth maps (zeros: none)."""
+def point_attributes(points: np.ndarray, views: list[FusionView], tolerance: float = 0.01,
+                     chunk: int = 1 << 21) -> tuple[np.ndarray, np.ndarray]:
+    """World-frame unit normals ``[N, 3]`` and mean confidences ``[N]`` (float32) of fused points from the
+    views that see them (zeros where none does)."""
     if len(points) == 0 or not views:
-        return np.zeros((len(points), 3), np.float32)
+        return np.zeros((len(points), 3), np.float32), np.zeros(len(points), np.float32)
     device = views[0].depth.device
     acc = torch.zeros((len(points), 3), dtype=torch.float32)
+    conf_sum = torch.zeros(len(points), dtype=torch.float32)
+    seen_count = torch.zeros(len(points), dtype=torch.float32)
     with torch.no_grad():
         for view in views:
             nmap = normal_map(view.depth, view.K)
@@ -53,6 +57,9 @@ def point_normals(points: np.ndarray, views: list[FusionView], tolerance: float 
                 d = view.depth[vi, ui]
                 seen = inside & (d > 0) & ((d - z).abs() <= tolerance * d)
                 acc[s:s + chunk] += (world[vi, ui] * seen[:, None]).cpu()
+                conf_sum[s:s + chunk] += (view.confidence[vi, ui] * seen).cpu()
+                seen_count[s:s + chunk] += seen.cpu()
     norm = acc.norm(dim=1, keepdim=True)
-    return torch.where(norm > 0, acc / norm.clamp(min=1e-30), torch.zeros_like(acc)).numpy()
+    normals = torch.where(norm > 0, acc / norm.clamp(min=1e-30), torch.zeros_like(acc))
+    return normals.numpy(), (conf_sum / seen_count.clamp(min=1)).numpy()
 

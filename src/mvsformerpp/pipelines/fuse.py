@@ -70,7 +70,8 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
     """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path.
 
     ``mask_dir``: object masks (:mod:`mvsformerpp.io.masks`); depths outside them are dropped before
-    fusion. ``normals``: store per-point normals from the depth maps (:mod:`mvsformerpp.fusion.normals`).
+    fusion. ``normals``: store per-point normals and confidences from the depth maps
+    (:mod:`mvsformerpp.fusion.normals`).
     """
     folder = Path(folder)
     out_ply = Path(out_ply) if out_ply is not None else folder / "fused.ply"
@@ -87,13 +88,14 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
             f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
             "--num-consistent 1 or --fusion dynamic); "
             "writing an empty point cloud", stacklevel=2)
-    point_normals = None
+    point_normals, extra = None, None
     if normals:
         from mvsformerpp.fusion import make_views
-        from mvsformerpp.fusion.normals import point_normals as normals_of
+        from mvsformerpp.fusion.normals import point_attributes
 
-        point_normals = normals_of(xyz, make_views(scene, depths, None, images, device))
-    write_ply(out_ply, xyz, rgb, normals=point_normals)
+        point_normals, confidence = point_attributes(xyz, make_views(scene, depths, confs, images, device))
+        extra = {"confidence": confidence}
+    write_ply(out_ply, xyz, rgb, normals=point_normals, extra=extra)
     if not quiet:
         print(f"{len(xyz):,} points in {time.perf_counter() - t0:.1f} s -> {out_ply}")
     return out_ply

@@ -52,10 +52,9 @@ class RunFolder:
 
     @property
     def cloud(self) -> Path | None:
-        ply = Path(self.summary.get("outputs", {}).get("ply") or self.root / "fused.ply")
-        if not ply.is_absolute():
-            ply = self.root / ply
-        return ply if ply.is_file() else (self.root / "fused.ply" if (self.root / "fused.ply").is_file() else None)
+        """``fused.ply`` of the folder, if there is one."""
+        ply = self.root / "fused.ply"
+        return ply if ply.is_file() else None
 
 
 def _json(path: Path) -> dict[str, Any]:

@@ -1,0 +1,77 @@
+"""COLMAP export: read back with pycolmap, depth maps identical, COLMAP's own fusion runs on it."""
+
+import numpy as np
+import pytest
+
+from mvsformerpp.cli import main
+from mvsformerpp.errors import InputError
+from mvsformerpp.io.colmap_dense import read_colmap_array, write_colmap_array
+from mvsformerpp.io.mvsnet import load_mvsnet_scene
+from mvsformerpp.io.pfm import read_pfm
+from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
+from mvsformerpp.pipelines.export import export_colmap
+
+
+def test_array_format_matches_colmaps_reading_order(tmp_path):
+    a = np.arange(2 * 3 * 4, dtype=np.float32).reshape(2, 3, 4)  # H=2, W=3, C=4
+    write_colmap_array(tmp_path / "a.bin", a)
+    raw = (tmp_path / "a.bin").read_bytes()
+    assert raw.startswith(b"3&2&4&")
+    # COLMAP's read_write_dense.py: fromfile, reshape (W, H, C) in Fortran order, transpose to (H, W, C)
+    flat = np.frombuffer(raw[len(b"3&2&4&"):], np.float32)
+    theirs = np.transpose(flat.reshape((3, 2, 4), order="F"), (1, 0, 2))
+    assert np.array_equal(theirs, a)
+    assert np.array_equal(read_colmap_array(tmp_path / "a.bin"), a)
+
+
+def test_export_reads_back_with_pycolmap(synth_run, tmp_path, capsys):
+    pycolmap = pytest.importorskip("pycolmap")
+    ws = tmp_path / "ws"
+    assert main(["export", str(synth_run), "--to", "colmap", str(ws)]) == 0
+    assert "stereo_fusion" in capsys.readouterr().out
+    rec = pycolmap.Reconstruction(ws / "sparse")
+    scene = load_mvsnet_scene(synth_run)
+    assert rec.num_images() == len(scene) and rec.num_cameras() == len(scene)
+    names = (ws / "stereo" / "fusion.cfg").read_text().split()
+    for image in rec.images.values():
+        view = scene.views[names.index(image.name)]
+        cam = rec.cameras[image.camera_id]
+        assert cam.model.name == "PINHOLE" and (cam.width, cam.height) == (view.width, view.height)
+        assert np.allclose(cam.calibration_matrix(), view.K)
+        pose = image.cam_from_world() if callable(image.cam_from_world) else image.cam_from_world
+        assert np.allclose(pose.rotation.matrix(), view.R, atol=1e-9) and np.allclose(pose.translation, view.t)
+        ours = read_pfm(synth_run / "depth_est" / f"{view.name}.pfm")
+        theirs = pycolmap.DepthMap()
+        theirs.read(ws / "stereo" / "depth_maps" / f"{image.name}.geometric.bin")
+        assert np.array_equal(theirs.to_array(), ours)
+        normals = read_colmap_array(ws / "stereo" / "normal_maps" / f"{image.name}.geometric.bin")
+        assert normals.shape == (*ours.shape, 3)
+        assert (ws / "images" / image.name).is_file()
+    frustums = read_ply_faces(ws / "cameras.ply")
+    assert len(frustums) == 6 * len(scene) and len(ply_points(read_ply(ws / "cameras.ply"))) == 5 * len(scene)
+    # COLMAP's own depth-map fusion accepts the workspace and puts its points on our surface
+    fused = tmp_path / "colmap_fused.ply"
+    options = pycolmap.StereoFusionOptions()
+    options.min_num_pixels = 2
+    pycolmap.stereo_fusion(fused, ws, options=options, output_type="PLY")
+    pts = ply_points(read_ply(fused))
+    ours = ply_points(read_ply(synth_run / "fused.ply"))
+    assert len(pts) > 1000
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(ours).query(pts)
+    assert np.median(dist) < 0.01 * np.median([v.depth_min for v in scene.views])
+
+
+def test_export_refuses_a_non_empty_folder(synth_run, tmp_path, capsys):
+    ws = tmp_path / "ws"
+    ws.mkdir()
+    (ws / "keep.txt").write_text("mine")
+    with pytest.raises(InputError, match="--overwrite"):
+        export_colmap(synth_run, ws, quiet=True)
+    assert (ws / "keep.txt").read_text() == "mine"
+    assert main(["export", str(synth_run), "--to", "colmap", str(ws), "--overwrite", "--quiet"]) == 0
+    assert not (ws / "keep.txt").exists() and (ws / "sparse" / "cameras.bin").is_file()
+    assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left
+    assert main(["export", str(tmp_path / "nothing"), "--to", "colmap", str(tmp_path / "ws2")]) == 2
+    assert "mvsformerpp reconstruct" in capsys.readouterr().err

@@ -1,0 +1,56 @@
+"""The browser viewer, driven in headless Chromium: the cloud renders, the cameras are counted."""
+
+import shutil
+import socket
+
+import numpy as np
+import pytest
+from PIL import Image
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.io.ply import read_ply
+
+pytest.importorskip("viser", reason="the viewer extra (viser) is not installed")
+
+from mvsformerpp.viewer.app import ViewerConfig, start_viewer  # noqa: E402
+
+
+def free_port() -> int:
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_viewer_in_headless_chromium(synth_run, tmp_path, browser_page):
+    taken = socket.socket()
+    taken.bind(("127.0.0.1", free_port()))
+    taken.listen()
+    port = taken.getsockname()[1]
+    viewer = start_viewer(synth_run, ViewerConfig(port=port, host="127.0.0.1", max_points=20_000))
+    try:
+        assert viewer.port != port  # the port was taken: the viewer moved on
+        total = len(read_ply(synth_run / "fused.ply")["x"])
+        assert viewer.cloud.total == total and len(viewer.cloud.xyz) == 20_000
+        browser_page.call("Page.navigate", url=viewer.url)
+        text = browser_page.wait_for_text("5 cameras")
+        assert f"20,000 of {total:,} points shown" in text
+        import time
+
+        time.sleep(3)  # let WebGL draw the cloud
+        shot = np.asarray(Image.open(browser_page.screenshot(tmp_path / "viewer.png")).convert("RGB")).astype(int)
+        assert shot.std() > 15  # not blank
+        # the live confidence filter: a stricter threshold shows fewer points, in the page too
+        shown = viewer.set_threshold(0.8)
+        expected = int((viewer.cloud.confidence >= 0.8).sum())
+        assert shown == expected < 20_000
+        browser_page.wait_for_text(f"{expected:,} of {total:,} points shown")
+    finally:
+        viewer.stop()
+        taken.close()
+
+
+def test_viewer_needs_a_cloud(synth_run, tmp_path):
+    out = tmp_path / "out"
+    shutil.copytree(synth_run, out, ignore=shutil.ignore_patterns("fused.ply"))
+    with pytest.raises(InputError, match="mvsformerpp fuse OUT"):
+        start_viewer(out, ViewerConfig(port=free_port(), host="127.0.0.1"))
