@@ -62,3 +62,20 @@ def test_differences_ignore_fields_that_do_not_change_the_trajectory():
     a = RECIPES["synthetic"]
     b = dataclasses.replace(a, lr=0.5, num_workers=3, save_every=9)
     assert config_differences(a, b) == ["lr: 0.001 -> 0.5"]
+
+
+def test_finetune_preset_and_recipe_loss_weights():
+    from mvsformerpp.models.config import get_config
+
+    assert get_config("paper").loss_weights == (1.0, 1.0, 1.0, 1.0)
+    assert get_config("paper_finetune").loss_weights == (0.0, 0.0, 0.0, 1.0)  # the reference's fine-tune loss
+    assert RECIPES["blended_finetune"].loss_weights == (1.0, 1.0, 1.0, 1.0)
+    assert load_config("blended_finetune", {"loss_weights": None}).loss_weights is None  # -> the preset's
+
+
+def test_micro_batch_by_height():
+    from mvsformerpp.training.trainer import micro_batch_for
+
+    dtu = RECIPES["dtu"]
+    assert micro_batch_for(dtu, 704, 4) == 4 and micro_batch_for(dtu, 768, 4) == 2
+    assert micro_batch_for(RECIPES["synthetic"], 128, 4) == 4

@@ -39,6 +39,17 @@ def test_lite_learns_on_synthetic_scenes(tmp_path):
     assert last < 0.85 * first, (first, last)
 
 
+def test_validation_depth_error_falls(tmp_path):
+    """A few hundred steps: the validation depth error (abs_rel, mae) falls well below the start's."""
+    cfg = tiny_config(height=64, width=96, max_steps=300, batch_size=2, warmup_steps=20, val_every=100, val_samples=8,
+                      synthetic_train_scenes=500, synthetic_views_per_scene=5, num_views=3, save_every=300,
+                      log_every=10)
+    run_training(cfg, tmp_path / "run")
+    val = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines() if "val" in x]
+    assert [r["step"] for r in val] == [0, 100, 200, 300]
+    assert val[-1]["abs_rel"] < 0.7 * val[0]["abs_rel"] and val[-1]["mae"] < 0.7 * val[0]["mae"], val
+
+
 def _train_cli(run, *extra):
     return [sys.executable, "-m", "mvsformerpp", "train", "synthetic", "-o", str(run), "--height", "32", "--width",
             "64", "--views", "3", "--batch-size", "1", "--max-steps", "6", "--save-every", "2",

@@ -56,12 +56,29 @@ class ResizeCrop:
     """Lower clip of the scale (DTU 0.45, BlendedMVS 0.375)."""
     max_tries: int = 100
     """Crops drawn for the reference view before the sample is declared without valid depth."""
+    center: bool = False
+    """Centre crops instead of random ones (validation)."""
 
     def scale(self, h0: int, w0: int, height: int, width: int, rng: np.random.Generator) -> float:
         bh, bw = self.base_size or (h0, w0)
         e = rng.uniform(*self.scale_range)
         sy, sx = np.clip(height * e / bh, self.min_scale, 1.0), np.clip(width * e / bw, self.min_scale, 1.0)
         return float(max(sy, sx))
+
+    def crop_origin(self, h1: int, w1: int, height: int, width: int, rng: np.random.Generator, depth, mask,
+                    what: str) -> tuple[int, int]:
+        """Top-left of the crop: centred, or random and (given a mask) redrawn until its 1/8 grid has valid depth."""
+        if self.center:
+            return (h1 - height) // 2, (w1 - width) // 2
+        for _ in range(self.max_tries if mask is not None else 1):
+            y0, x0 = int(rng.integers(0, h1 - height + 1)), int(rng.integers(0, w1 - width + 1))
+            if mask is None:
+                return y0, x0
+            m = mask[y0:y0 + height, x0:x0 + width] & (depth[y0:y0 + height, x0:x0 + width] > 0)
+            if m[::8, ::8].any():
+                return y0, x0
+        raise InputError(f"{what}: no crop of the reference view has valid ground-truth depth "
+                         f"(tried {self.max_tries}); check its depth map and mask")
 
     def __call__(self, views: list, height: int, width: int, rng: np.random.Generator, what: str = "sample") -> list:
         h0, w0 = views[0].image.shape[:2]
@@ -77,16 +94,8 @@ class ResizeCrop:
             image = _resize_image(v.image, h1, w1)
             depth = None if v.depth is None else _resize_nearest(v.depth, h1, w1)
             mask = None if v.mask is None else _resize_nearest(v.mask, h1, w1)
-            for _ in range(self.max_tries if i == 0 else 1):
-                y0, x0 = int(rng.integers(0, h1 - height + 1)), int(rng.integers(0, w1 - width + 1))
-                if i > 0 or mask is None:
-                    break
-                m = mask[y0:y0 + height, x0:x0 + width] & (depth[y0:y0 + height, x0:x0 + width] > 0)
-                if m[::8, ::8].any():
-                    break
-            else:
-                raise InputError(f"{what}: no crop of the reference view has valid ground-truth depth "
-                                 f"(tried {self.max_tries}); check its depth map and mask")
+            y0, x0 = self.crop_origin(h1, w1, height, width, rng, depth if i == 0 else None,
+                                      mask if i == 0 else None, what)
             win = (slice(y0, y0 + height), slice(x0, x0 + width))
             out.append(dataclasses.replace(v, image=image[win], K=crop_intrinsics(K, x0, y0),
                                            depth=None if depth is None else depth[win],

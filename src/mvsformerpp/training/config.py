@@ -86,6 +86,8 @@ class TrainConfig:
     """Global batch (all processes together); the reference: 16 on 4 GPUs."""
     micro_batch: int = 0
     """Samples per forward pass inside a process (gradient accumulation); 0: the whole per-process batch."""
+    micro_batch_by_height: tuple[tuple[int, int], ...] = ()
+    """(max height, micro-batch) pairs, the first that fits a batch's height wins; else ``micro_batch``."""
     lr: float = 1e-3
     """AdamW learning rate of the trainable parameters."""
     weight_decay: float = 0.0
@@ -166,12 +168,13 @@ RECIPES: dict[str, TrainConfig] = {
         recipe="synthetic", preset="lite", height=128, width=160, batch_size=4, lr=1e-3, warmup_steps=100,
         epochs=20, val_samples=16,
     ),
-    # config/mvsformer++.json (spec section 9): 25 resolutions 512x640 .. 1024x1280, global batch 16,
-    # micro-batch 2 at H >= 768 handled by micro_batch below, 15 epochs, lr 1e-3, 500 warm-up steps.
+    # config/mvsformer++.json (spec section 9): 25 resolutions 512x640 .. 1024x1280, global batch 16 (4 per GPU
+    # on 4 GPUs) in micro-batches of 4 up to H = 704 and 2 above, 15 epochs, lr 1e-3, 500 warm-up steps.
     "dtu": TrainConfig(
         recipe="dtu", preset="paper", height=512, width=640,
         resolutions=DTU_RESOLUTIONS,
-        resize_base=(1200, 1600), resize_min_scale=0.45, batch_size=16, micro_batch=2, lr=1e-3, warmup_steps=500,
+        resize_base=(1200, 1600), resize_min_scale=0.45, batch_size=16, micro_batch_by_height=((704, 4), (1024, 2)),
+        lr=1e-3, warmup_steps=500,
         min_lr_ratio=0.01, epochs=15, val_height=1152, val_width=1536, val_samples=0, best_metric="abs_rel",
         precision="bf16", device="cuda", seed=123, save_every=1000, log_every=50,
     ),
@@ -180,7 +183,8 @@ RECIPES: dict[str, TrainConfig] = {
     "blended_finetune": TrainConfig(
         recipe="blended_finetune", preset="paper_finetune", height=576, width=768,
         resolutions=DTU_RESOLUTIONS[::-1],
-        resize_base=(1536, 2048), resize_min_scale=0.375, batch_size=16, micro_batch=2, lr=1e-4, warmup_steps=500,
+        resize_base=(1536, 2048), resize_min_scale=0.375, batch_size=16, micro_batch_by_height=((704, 4), (1024, 2)),
+        lr=1e-4, warmup_steps=500,
         min_lr_ratio=0.005, epochs=10, loss_weights=(1.0, 1.0, 1.0, 1.0), val_samples=0, precision="bf16",
         device="cuda", seed=123, save_every=1000, log_every=50,
     ),

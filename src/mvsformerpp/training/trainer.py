@@ -74,6 +74,14 @@ def build_optimizer(model: torch.nn.Module, config: TrainConfig):
     return opt
 
 
+def micro_batch_for(config: TrainConfig, height: int, per_rank: int) -> int:
+    """Samples per forward pass for a batch of this height (``micro_batch_by_height``, ``micro_batch``)."""
+    for max_h, m in config.micro_batch_by_height:
+        if height <= max_h:
+            return max(1, min(m, per_rank))
+    return max(1, min(config.micro_batch or per_rank, per_rank))
+
+
 def _slice(batch, a: int, b: int):
     if isinstance(batch, dict):
         return {k: _slice(v, a, b) for k, v in batch.items()}
@@ -179,7 +187,6 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
     ddp_model = D.wrap_model(model, info)
     log = MetricsLog(run_dir, config.tensorboard, resume_step=step if resume else None) if info.is_main else None
     per_rank = config.batch_size // info.world_size
-    micro = config.micro_batch or per_rank
     bar = _Bar(total, step, config.progress and info.is_main)
     ddp_model.train()
     # the running means of the next metrics row (kept in the checkpoint, so resumed rows are the same)
@@ -210,6 +217,8 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
         D.barrier(info)
 
     try:
+        if step == 0 and total > 0:
+            run_validation()  # the starting point of the validation curve
         while step < total:
             epoch, start = divmod(step, per_epoch)
             sampler = MultiScaleBatchSampler(len(train_ds), config.batch_size, config.resolutions or
@@ -218,6 +227,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
             loader = DataLoader(train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=config.num_workers,
                                 persistent_workers=False)
             for batch in loader:
+                micro = micro_batch_for(config, batch["imgs"].shape[-2], per_rank)
                 loss_vec, bad = _train_step(ddp_model, opt, scaler, batch, micro, per_rank, loss_weights, config,
                                             device, info)
                 lr = opt.param_groups[0]["lr"]
