@@ -16,20 +16,14 @@ from mvsformerpp.io.mvsnet import MVSNetCam, write_cam
 from mvsformerpp.io.pair import write_pair
 from mvsformerpp.io.pfm import write_pfm
 from mvsformerpp.models.inputs import IMAGENET_MEAN, IMAGENET_STD
-from mvsformerpp.synth import random_scene, render_view
+
+from .train_utils import rendered_views
 
 H, W, N = 96, 128, 4
 
 
 def _render(seed=3):
-    scene = random_scene(seed, N, H, W)
-    out = []
-    for cam in scene.cameras:
-        image, depth, _ = render_view(scene, cam)
-        E = np.eye(4)
-        E[:3, :3], E[:3, 3] = cam.R, cam.t
-        out.append((image, depth, cam.K, E))
-    return out
+    return rendered_views(seed, N, H, W)[1]
 
 
 def _pairs():

@@ -6,20 +6,16 @@ import torch
 
 from mvsformerpp.data import PhotometricAugment, ResizeCrop, ViewData
 from mvsformerpp.errors import InputError
-from mvsformerpp.synth import random_scene, render_view
+from mvsformerpp.synth import render_view
 from mvsformerpp.synth.render import Camera, SynthScene
+
+from .train_utils import rendered_views
 
 
 def _views(h=96, w=128, seed=4, n=3):
     """(scene, its views with depth) rendered at h x w."""
-    scene = random_scene(seed, n, h, w)
-    out = []
-    for cam in scene.cameras:
-        image, depth, _ = render_view(scene, cam)
-        E = np.eye(4)
-        E[:3, :3], E[:3, 3] = cam.R, cam.t
-        out.append(ViewData(image, cam.K.copy(), E, depth, depth > 0))
-    return scene, out
+    scene, views = rendered_views(seed, n, h, w)
+    return scene, [ViewData(image, K, E, depth, depth > 0) for image, depth, K, E in views]
 
 
 def _render(scene, view_index: int, K: np.ndarray, h: int, w: int):
