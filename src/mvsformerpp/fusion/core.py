@@ -68,13 +68,19 @@ def _reprojection_errors(ref: FusionView, srcs: list[FusionView], src_depths, u,
     return torch.stack(errs), torch.stack(depths), torch.stack(valid)
 
 
+def _confident_depth(view: FusionView, cfg: FusionConfig) -> torch.Tensor:
+    """The view's depth with the pixels at or below the confidence threshold set to 0 (no estimate):
+    what ``normal`` and ``gipuma`` see of a source view."""
+    return torch.where(view.confidence > cfg.conf_threshold, view.depth, torch.zeros_like(view.depth))
+
+
 def _fuse_reprojection(ref, srcs, cfg: FusionConfig, idx):
     """normal / dynamic filters for the reference pixels ``idx``; returns (kept idx, fused depth)."""
     H, W = ref.depth.shape
     u, v = _pixel_centres(H, W, idx)
     d = ref.depth.reshape(-1)[idx]
     if cfg.method == "normal":  # sources are filtered by their own confidence first
-        src_depths = [torch.where(s.confidence > cfg.conf_threshold, s.depth, torch.zeros_like(s.depth)) for s in srcs]
+        src_depths = [_confident_depth(s, cfg) for s in srcs]
     else:
         src_depths = [s.depth for s in srcs]
     err, dr, valid = _reprojection_errors(ref, srcs, src_depths, u, v, d)
@@ -115,7 +121,7 @@ def _fuse_gipuma_ref(views, r, candidates, cfg: FusionConfig, idx, used):
         ui = us.clamp(0, Ws - 1).floor().long()
         vi = vs.clamp(0, Hs - 1).floor().long()
         flat = vi * Ws + ui
-        dj = src.depth.reshape(-1)[flat]
+        dj = _confident_depth(src, cfg).reshape(-1)[flat]
         baseline = torch.linalg.norm(ref.center - src.center)
         disp_diff = (f * baseline * (1 / z.clamp(min=1e-12) - 1 / dj.clamp(min=1e-12))).abs()
         ok = inside & (dj > 0) & (disp_diff < cfg.disp_threshold)
