@@ -14,7 +14,7 @@ from mvsformerpp.errors import MVSFormerError
 
 # Subcommand modules, in the order `--help` lists them.
 COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "mesh", "export", "report", "view", "evaluate", "info",
-                             "synth")
+                             "synth", "train")
 
 
 def build_parser() -> argparse.ArgumentParser:

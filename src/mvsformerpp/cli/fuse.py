@@ -26,6 +26,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="object masks: depths outside them are dropped before fusion (one per photo, named like "
                         "it or by view index; DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--memory-gb", type=float, metavar="GB",
+                   help="memory budget: depth maps are read on demand and cached within it, points are "
+                        "written as they are produced (default: half of the free memory)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -36,5 +39,6 @@ def run(args: argparse.Namespace) -> int:
 
     config = get_config(args.preset, conf_threshold=args.conf, disp_threshold=args.disp,
                         num_consistent=args.num_consistent, num_src_views=args.num_src_views)
-    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet, mask_dir=args.mask_dir)
+    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet, memory_gb=args.memory_gb,
+         mask_dir=args.mask_dir)
     return 0

@@ -10,6 +10,8 @@ those views' pixels (what a viewer's confidence slider filters on).
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -34,18 +36,16 @@ def normal_map(depth: torch.Tensor, K: torch.Tensor, edge: float = 0.05) -> torc
     return torch.where(ok[..., None], n / norm.clamp(min=1e-30), torch.zeros_like(n))
 
 
-def point_attributes(points: np.ndarray, views: list[FusionView], tolerance: float = 0.01,
+def point_attributes(points: np.ndarray, views: Iterable[FusionView], tolerance: float = 0.01,
                      chunk: int = 1 << 21) -> tuple[np.ndarray, np.ndarray]:
     """World-frame unit normals ``[N, 3]`` and mean confidences ``[N]`` (float32) of fused points from the
-    views that see them (zeros where none does)."""
-    if len(points) == 0 or not views:
-        return np.zeros((len(points), 3), np.float32), np.zeros(len(points), np.float32)
-    device = views[0].depth.device
+    views that see them (zeros where none does). ``views`` is iterated once (a generator may load them)."""
     acc = torch.zeros((len(points), 3), dtype=torch.float32)
     conf_sum = torch.zeros(len(points), dtype=torch.float32)
     seen_count = torch.zeros(len(points), dtype=torch.float32)
     with torch.no_grad():
         for view in views:
+            device = view.depth.device
             nmap = normal_map(view.depth, view.K)
             world = nmap @ view.E[:3, :3].float()  # camera -> world: R^T n, row-vector form
             H, W = view.depth.shape

@@ -66,24 +66,25 @@ def read_mask(path: str | Path) -> np.ndarray:
     return rgb.mean(axis=-1) > 127.5
 
 
+def _check_aspect(h: int, w: int, height: int, width: int, where: Path) -> None:
+    if abs(w / h - width / height) > 0.01 * width / height:
+        raise FormatError(f"mask is {w}x{h} but its image is {width}x{height} (another aspect ratio): "
+                          "give the masks of these photos", where)
+
+
 def fit_mask(mask: np.ndarray, height: int, width: int, where: Path) -> np.ndarray:
     """Resize a mask to ``height x width`` (nearest); refuse one of another aspect ratio."""
     h, w = mask.shape
     if (h, w) == (height, width):
         return mask
-    if abs(w / h - width / height) > 0.01 * width / height:
-        raise FormatError(f"mask is {w}x{h} but its image is {width}x{height} (another aspect ratio): "
-                          "give the masks of these photos", where)
+    _check_aspect(h, w, height, width, where)
     from PIL import Image
 
     return np.asarray(Image.fromarray(mask).resize((width, height), Image.NEAREST))
 
 
-def load_masks(path: str | Path, names: list[str], sizes: list[tuple[int, int]]) -> list[np.ndarray]:
-    """One bool mask per view (``names`` of the photos, ``sizes`` as (height, width) to apply them at).
-
-    Raises :class:`InputError` naming the views without a mask, or the first mask of a wrong size.
-    """
+def mask_paths(path: str | Path, names: list[str]) -> list[Path]:
+    """The mask file of every view (``names`` of the photos); :class:`InputError` naming views without one."""
     folder = mask_folder(path)
     paths = [find_mask(folder, i, n) for i, n in enumerate(names)]
     missing = [n for n, p in zip(names, paths) if p is None]
@@ -92,4 +93,20 @@ def load_masks(path: str | Path, names: list[str], sizes: list[tuple[int, int]])
             f"no mask for {len(missing)} of {len(names)} views ({', '.join(missing[:5])}"
             f"{' ...' if len(missing) > 5 else ''}); name masks like the photos (IMG_1.png for IMG_1.jpg) "
             "or by view index (00000000.png or 000.png)", folder)
-    return [fit_mask(read_mask(p), h, w, p) for p, (h, w) in zip(paths, sizes)]
+    return paths
+
+
+def check_mask_size(path: Path, height: int, width: int) -> None:
+    """Refuse a mask whose aspect ratio is not its image's (header read only)."""
+    from mvsformerpp.io.images import image_size
+
+    w, h = image_size(path)
+    _check_aspect(h, w, height, width, path)
+
+
+def load_masks(path: str | Path, names: list[str], sizes: list[tuple[int, int]]) -> list[np.ndarray]:
+    """One bool mask per view (``names`` of the photos, ``sizes`` as (height, width) to apply them at).
+
+    Raises :class:`InputError` naming the views without a mask, or the first mask of a wrong size.
+    """
+    return [fit_mask(read_mask(p), h, w, p) for p, (h, w) in zip(mask_paths(path, names), sizes)]

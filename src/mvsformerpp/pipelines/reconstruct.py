@@ -47,7 +47,8 @@ class ReconstructConfig:
     max_size: int | None = 1536
     """Cap on the longer image side at the working resolution (never upscaled); None = no cap."""
     memory_gb: float | None = None
-    """Memory budget of one forward; None = half of the device's free memory."""
+    """Memory budget of one forward and of fusion (which streams the depth maps through a cache of this
+    size); None = half of the device's free memory."""
     num_views: int = 5
     """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
     num_depth: int = 192
@@ -282,11 +283,11 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
                                       **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir else {})})
         if not folder.fusion_done(fusion_state):
             with disk_full_guard(ply):
-                _run_fusion(folder.root, ply, config.fusion, quiet, config.mask_dir)
+                _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, config.mask_dir)
             folder.mark_fusion(fusion_state)
-        from mvsformerpp.io.ply import ply_points, read_ply
+        from mvsformerpp.io.ply import ply_vertex_count
 
-        points = int(len(ply_points(read_ply(ply))))
+        points = ply_vertex_count(ply)
     timings["fusion_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
 
@@ -327,10 +328,8 @@ def _fusion_config(name: str):
     return get(name) if callable(get) else name
 
 
-def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, mask_dir: str | None = None) -> None:
-    import inspect
-
+def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None,
+                mask_dir: str | None = None) -> None:
     from mvsformerpp.pipelines.fuse import fuse
 
-    kwargs = {"quiet": quiet} if "quiet" in inspect.signature(fuse).parameters else {}
-    fuse(folder, ply, _fusion_config(name), mask_dir=mask_dir, **kwargs)
+    fuse(folder, ply, _fusion_config(name), quiet=quiet, memory_gb=memory_gb, mask_dir=mask_dir)
