@@ -64,12 +64,12 @@ def test_fused_cloud_has_unit_normals_facing_the_cameras(synth_run):
     xyz = ply_points(ply)
     nrm = np.stack([ply["nx"], ply["ny"], ply["nz"]], 1)
     length = np.linalg.norm(nrm, axis=1)
-    assert (np.abs(length - 1) < 1e-4).mean() > 0.95
+    assert (np.abs(length - 1) < 1e-4).mean() > 0.9  # (none at depth edges)
     scene = load_mvsnet_scene(synth_run)
     centres = np.stack([v.center for v in scene.views])
     # every normal faces the camera centroid side: the views look at the scene from one side
     toward = ((centres.mean(0) - xyz) * nrm).sum(1)
     assert (toward[length > 0.5] > 0).mean() > 0.97
-    # per-point confidence: the mean of the seeing views' confidences (0.95 .. 0.35 across each image)
+    # per-point confidence: its reference pixel's (0.95 .. 0.35 across each image; fusion keeps > 0.5)
     conf = ply["confidence"]
-    assert ((conf >= 0.35 - 1e-5) & (conf <= 0.95 + 1e-5)).all() and conf.std() > 0.05
+    assert ((conf > 0.5) & (conf <= 0.95 + 1e-5)).all() and conf.std() > 0.05

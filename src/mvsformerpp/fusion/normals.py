@@ -3,14 +3,13 @@
 A depth map's normal at a pixel is the cross product of the central differences of its back-projected
 neighbours (pixel centres, :func:`mvsformerpp.geometry.camera.depth_to_points`), turned towards the camera;
 pixels at a depth edge (neighbours more than ``edge`` relative depth apart) or next to a missing depth
-get none. A fused point takes the normalised sum of the normals of the views whose depth map sees it
-(projected depth within ``tolerance`` relative of the map's depth there), and the mean confidence of
-those views' pixels (what a viewer's confidence slider filters on).
+get none. A fused point takes the normal and the confidence of its pixel in the reference view that produced it
+(the confidence is what fusion's threshold and a viewer's confidence slider filter on).
 """
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Sequence
 
 import numpy as np
 import torch
@@ -36,30 +35,26 @@ def normal_map(depth: torch.Tensor, K: torch.Tensor, edge: float = 0.05) -> torc
     return torch.where(ok[..., None], n / norm.clamp(min=1e-30), torch.zeros_like(n))
 
 
-def point_attributes(points: np.ndarray, views: Iterable[FusionView], tolerance: float = 0.01,
-                     chunk: int = 1 << 21) -> tuple[np.ndarray, np.ndarray]:
-    """World-frame unit normals ``[N, 3]`` and mean confidences ``[N]`` (float32) of fused points from the
-    views that see them (zeros where none does). ``views`` is iterated once (a generator may load them)."""
-    acc = torch.zeros((len(points), 3), dtype=torch.float32)
-    conf_sum = torch.zeros(len(points), dtype=torch.float32)
-    seen_count = torch.zeros(len(points), dtype=torch.float32)
-    with torch.no_grad():
-        for view in views:
-            device = view.depth.device
-            nmap = normal_map(view.depth, view.K)
-            world = nmap @ view.E[:3, :3].float()  # camera -> world: R^T n, row-vector form
-            H, W = view.depth.shape
-            for s in range(0, len(points), chunk):
-                X = torch.as_tensor(points[s:s + chunk], dtype=torch.float32, device=device)
-                u, v, z = project(view.K.float(), view.E.float(), X)
-                inside = (u >= 0) & (u < W) & (v >= 0) & (v < H) & (z > 0)
-                ui, vi = u.clamp(0, W - 1).long(), v.clamp(0, H - 1).long()
-                d = view.depth[vi, ui]
-                seen = inside & (d > 0) & ((d - z).abs() <= tolerance * d)
-                acc[s:s + chunk] += (world[vi, ui] * seen[:, None]).cpu()
-                conf_sum[s:s + chunk] += (view.confidence[vi, ui] * seen).cpu()
-                seen_count[s:s + chunk] += seen.cpu()
-    norm = acc.norm(dim=1, keepdim=True)
-    normals = torch.where(norm > 0, acc / norm.clamp(min=1e-30), torch.zeros_like(acc))
-    return normals.numpy(), (conf_sum / seen_count.clamp(min=1)).numpy()
+class ReferenceAttributes:
+    """Normal and confidence of fused points from the reference view that produced them.
 
+    ``attrs(r, xyz)`` projects points of reference view ``r`` into it and reads its normal map (turned to
+    world coordinates, facing that camera) and confidence at their pixels; the normal map of the current
+    reference is kept, so a stream of fused pieces costs one normal map per view.
+    """
+
+    def __init__(self, views: Sequence[FusionView]):
+        self.views = views
+        self._r: int | None = None
+        self._normals: torch.Tensor | None = None
+
+    def __call__(self, r: int, xyz: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        ref = self.views[r]
+        if r != self._r:
+            self._normals = normal_map(ref.depth, ref.K) @ ref.E[:3, :3].float()  # camera -> world, row form
+            self._r = r
+        H, W = ref.depth.shape
+        X = torch.as_tensor(xyz, dtype=torch.float32, device=ref.depth.device)
+        u, v, _ = project(ref.K.float(), ref.E.float(), X)
+        ui, vi = u.clamp(0, W - 1).long(), v.clamp(0, H - 1).long()
+        return self._normals[vi, ui].cpu().numpy(), ref.confidence[vi, ui].float().cpu().numpy()

@@ -23,6 +23,7 @@ from tqdm import tqdm
 
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.fusion import FusionConfig, iter_fused_points
+from mvsformerpp.fusion.normals import ReferenceAttributes
 from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
 from mvsformerpp.io.images import read_image
 from mvsformerpp.io.mvsnet import load_mvsnet_scene
@@ -144,7 +145,7 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
 
     ``memory_gb`` bounds the loaded views and working memory (default: half of the free memory).
     ``mask_dir``: object masks (:mod:`mvsformerpp.io.masks`); depths outside them are dropped before
-    fusion. ``normals``: add per-point normals and confidences from the depth maps
+    fusion. ``normals``: store each point's normal and confidence from its reference view's maps
     (:mod:`mvsformerpp.fusion.normals`).
     """
     return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals)["ply"]
@@ -172,34 +173,26 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     t0 = time.perf_counter()
     with (tqdm(total=len(scene), desc=f"Fusion ({config.method})", unit="view", disable=quiet) as bar,
           PlyStreamWriter(out_ply) as ply, torch.no_grad()):
-        for xyz, rgb in iter_fused_points(store, neighbors, config, progress=lambda r: bar.update(1)):
-            ply.write(xyz, rgb)
+        finished = [0]  # reference views done: the pieces in between come from view finished[0]
+
+        def progress(r: int) -> None:
+            finished[0] = r + 1
+            bar.update(1)
+        attributes = ReferenceAttributes(store) if normals else None
+        for xyz, rgb in iter_fused_points(store, neighbors, config, progress=progress):
+            if attributes is None:
+                ply.write(xyz, rgb)
+            else:
+                point_normals, confidence = attributes(finished[0], xyz)
+                ply.write(xyz, rgb, normals=point_normals, extra={"confidence": confidence})
     if ply.count == 0:
         warnings.warn(
             "fusion kept no point: the depth maps disagree everywhere or all confidences are below "
             f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
             "--num-consistent 1 or --fusion dynamic); "
             "wrote an empty point cloud", stacklevel=2)
-    if normals:
-        add_point_attributes(out_ply, depths, device)
     seconds = time.perf_counter() - t0
     if not quiet:
         print(f"{ply.count:,} points in {seconds:.1f} s -> {out_ply}")
     return {"ply": out_ply, "points": ply.count, "seconds": seconds, "view_cache": store.stats()}
 
-
-def add_point_attributes(ply_path: Path, depths: DepthFolder, device: str = "cpu") -> None:
-    """Rewrite a fused PLY with per-point normals and confidences from the depth maps.
-
-    A second pass: the points (xyz, colours and the new attributes: 31 bytes a point) are held in
-    memory, the views are read one at a time.
-    """
-    from mvsformerpp.fusion import make_view
-    from mvsformerpp.fusion.normals import point_attributes
-    from mvsformerpp.io.ply import ply_colors, ply_points, read_ply, write_ply
-
-    vertex = read_ply(ply_path)
-    xyz = ply_points(vertex, ply_path).astype(np.float32)
-    views = (make_view(depths.scene.views[i], *depths.read(i), device) for i in range(len(depths.scene)))
-    point_normals, confidence = point_attributes(xyz, views)
-    write_ply(ply_path, xyz, ply_colors(vertex), normals=point_normals, extra={"confidence": confidence})
