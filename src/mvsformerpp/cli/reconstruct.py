@@ -6,6 +6,7 @@ import argparse
 import logging
 
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig
+from mvsformerpp.pipelines.sfm import SfMConfig
 
 _DEFAULT = ReconstructConfig()
 
@@ -41,6 +42,15 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
                    help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
     g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
+    s = p.add_argument_group("structure from motion (a folder of photos)")
+    s.add_argument("--camera-model", default=_DEFAULT.sfm.camera_model, metavar="MODEL",
+                   help=f"COLMAP camera model to estimate (default: {_DEFAULT.sfm.camera_model}; e.g. PINHOLE, "
+                        "RADIAL, OPENCV)")
+    s.add_argument("--single-camera", action="store_true", help="all photos come from one camera with one lens")
+    s.add_argument("--matcher", choices=("exhaustive", "sequential"), default=_DEFAULT.sfm.matcher,
+                   help="exhaustive: all pairs (default); sequential: neighbours in name order (video frames)")
+    s.add_argument("--sfm-max-size", type=int, default=_DEFAULT.sfm.max_image_size, metavar="PX",
+                   help=f"longest photo side used for features (default: {_DEFAULT.sfm.max_image_size})")
 
 
 def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
@@ -49,6 +59,8 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
         fusion=args.fusion, cache_mb=args.cache_mb, mask_dir=args.mask_dir,
+        sfm=SfMConfig(camera_model=args.camera_model, single_camera=args.single_camera, matcher=args.matcher,
+                      max_image_size=args.sfm_max_size),
     )
 
 

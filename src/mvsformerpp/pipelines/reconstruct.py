@@ -28,6 +28,7 @@ from mvsformerpp.inference.output_folder import OutputFolder, disk_full_guard, s
 from mvsformerpp.inference.resolution import available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.inference.runner import SceneInference
 from mvsformerpp.io.scene import Scene
+from mvsformerpp.pipelines.sfm import SfMConfig
 
 log = logging.getLogger(__name__)
 
@@ -61,6 +62,8 @@ class ReconstructConfig:
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
     fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
     """Fusion filter (``mvsformerpp.fusion``); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
+    sfm: SfMConfig = SfMConfig()
+    """Structure-from-motion settings, used when INPUT is a folder of photos."""
     mask_dir: str | None = None
     """Object masks applied before fusion (:mod:`mvsformerpp.io.masks` layouts); None = no masks."""
     cache_mb: int = 2048
@@ -93,18 +96,22 @@ class ReconstructConfig:
 # ---------------------------------------------------------------------------------------------- input
 
 
-def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False) -> Scene:
+def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False,
+               sfm: SfMConfig | None = None) -> Scene:
     """Load INPUT as a Scene, running SfM (photos) or undistortion (distorted COLMAP) into ``out``."""
     from mvsformerpp.io import detect
 
     path = Path(path)
     if not path.exists():
         raise InputError("no such file or folder", path)
+    if (path / "DONE").is_file() and (path / "dense" / "sparse").is_dir():
+        log.info("%s is the structure-from-motion folder of a reconstruction: using its dense/ project", path)
+        path = path / "dense"
     layout = detect.detect_layout(path)
     if layout == "images":
         from mvsformerpp.pipelines.sfm import run_sfm
 
-        dense = run_sfm(path, out / "sfm", quiet=quiet)
+        dense = run_sfm(path, out / "sfm", quiet=quiet, config=sfm)
         return detect.load_scene(dense)
     if layout == "colmap" and _colmap_is_distorted(path):
         from mvsformerpp.io.colmap import undistort_colmap
@@ -226,7 +233,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     folder = OutputFolder(out_dir)
-    full = load_input(input_path, folder.root, quiet=quiet)
+    full = load_input(input_path, folder.root, quiet=quiet, sfm=config.sfm)
     fingerprint = scene_fingerprint(full)
     folder.check_scene(fingerprint)
     scene = prepare_scene(full, config)

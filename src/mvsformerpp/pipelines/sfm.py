@@ -3,21 +3,27 @@
 Stages (each skipped when its output already exists, so an interrupted or repeated run does not
 redo finished work; hloc-style ``f(..., out_dir) -> Path``):
 
-1. SIFT features of every photo            -> ``OUT/sfm/database.db``
-2. exhaustive matching + geometric verification (same database)
+1. SIFT features of every photo (one camera per photo, or one for all) -> ``OUT/sfm/database.db``
+2. exhaustive or sequential matching + geometric verification (same database)
 3. incremental mapping; the largest model  -> ``OUT/sfm/sparse/``
 4. undistortion to pinhole cameras         -> ``OUT/sfm/dense/{images,sparse}`` (a COLMAP project)
 
 The result, ``OUT/sfm/dense``, is an undistorted COLMAP project that the COLMAP reader loads like any
-other. ``OUT/sfm/DONE`` marks a completed run.
+other. ``OUT/sfm/DONE`` marks a completed run, ``OUT/sfm/options.json`` its settings (other settings start
+over), ``OUT/sfm/report.json`` its outcome. pycolmap's failures become one :class:`InputError` naming the
+stage and what to try.
 """
 
 from __future__ import annotations
 
 import contextlib
+import dataclasses
+import json
 import logging
 import shutil
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Literal
 
 from mvsformerpp.errors import InputError, MissingDependencyError
 
@@ -43,8 +49,6 @@ def list_photos(folder: Path) -> list[str]:
 
 def write_sfm_report(model_dir: Path, photos: list[str], path: Path) -> dict:
     """Write the outcome of SfM (registered and dropped photos, points, error, intrinsics) as JSON."""
-    import json
-
     from mvsformerpp.io.colmap_model import read_model
     from mvsformerpp.io.colmap_stats import model_statistics
     from mvsformerpp.utils.atomic import atomic_write_text
@@ -59,16 +63,60 @@ def _stage(progress, name: str) -> None:
         progress.set_description(f"SfM: {name}")
 
 
-def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False, max_image_size: int = 2000) -> Path:
+@dataclass(frozen=True)
+class SfMConfig:
+    """Structure-from-motion settings for a folder of photos (saved to ``OUT/sfm/options.json``)."""
+
+    camera_model: str = "SIMPLE_RADIAL"
+    """COLMAP camera model to estimate (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, ...)."""
+    single_camera: bool = False
+    """All photos share one camera (one lens and zoom), which steadies the intrinsics."""
+    matcher: Literal["exhaustive", "sequential"] = "exhaustive"
+    """exhaustive: every pair of photos; sequential: each photo with its neighbours in name order (video frames)."""
+    max_image_size: int = 2000
+    """Longest side used for SIFT features (COLMAP's own default is 3200)."""
+    overlap: int = 10
+    """sequential: how many following photos each one is matched with."""
+
+    def __post_init__(self) -> None:
+        from mvsformerpp.io.colmap_model import CAMERA_MODELS
+
+        if self.camera_model not in CAMERA_MODELS:
+            raise InputError(f"--camera-model {self.camera_model!r} is not a COLMAP camera model; choose one of "
+                             f"{', '.join(CAMERA_MODELS)}")
+        if self.max_image_size < 64:
+            raise InputError(f"--sfm-max-size must be at least 64 pixels, got {self.max_image_size}")
+        if self.matcher not in ("exhaustive", "sequential"):
+            raise InputError(f"--matcher must be exhaustive or sequential, got {self.matcher!r}")
+
+
+@contextlib.contextmanager
+def _explained(stage: str, hint: str, where: Path):
+    """Turn pycolmap's exceptions in ``stage`` into one :class:`InputError` that says what to try."""
+    try:
+        yield
+    except (RuntimeError, ValueError) as e:
+        first = (str(e).strip().splitlines() or [type(e).__name__])[-1][:300]
+        raise InputError(f"structure-from-motion failed while {stage} ({first}); {hint}", where) from e
+
+
+def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
+            config: SfMConfig | None = None) -> Path:
     """Calibrate the photos in ``image_dir``; return the undistorted COLMAP project ``sfm_dir/dense``.
 
-    ``max_image_size`` caps the longest side used for SIFT (COLMAP's own default is 3200).
-    Raises :class:`InputError` when fewer than two photos register into one model.
+    A finished run with the same settings is reused. Raises :class:`InputError` when fewer than two
+    photos register into one model or pycolmap fails (with what to try).
     """
+    config = config or SfMConfig()
     image_dir, sfm_dir = Path(image_dir), Path(sfm_dir)
     dense = sfm_dir / "dense"
     done = sfm_dir / "DONE"
-    if done.is_file() and (dense / "sparse").is_dir():
+    options_file = sfm_dir / "options.json"
+    options = json.dumps(dataclasses.asdict(config), sort_keys=True)
+    same = options_file.is_file() and options_file.read_text() == options
+    if not options_file.is_file() and done.is_file():
+        same = config == SfMConfig()  # a run from before options were recorded used the defaults
+    if done.is_file() and (dense / "sparse").is_dir() and same:
         log.info("SfM already done in %s; reusing it", sfm_dir)
         return dense
     pycolmap = import_pycolmap()
@@ -80,59 +128,76 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False, max
             image_dir,
         )
     sfm_dir.mkdir(parents=True, exist_ok=True)
+    if not same:  # other settings: start over
+        for name in ("features.done", "DONE", "database.db"):
+            with contextlib.suppress(FileNotFoundError):
+                (sfm_dir / name).unlink()
+        options_file.write_text(options)
     from tqdm import tqdm
 
     # COLMAP logs every step at INFO level; keep warnings and errors only (all of it when verbose).
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else (2 if quiet else 1)
 
-    with tqdm(total=4, desc="SfM", unit="stage", disable=quiet) as progress:
-        database = sfm_dir / "database.db"
-        features_done = sfm_dir / "features.done"
-        if not features_done.is_file():
-            # A database left by an interrupted extraction may be incomplete: start it afresh.
-            with contextlib.suppress(FileNotFoundError):
-                database.unlink()
-            _stage(progress, "features")
-            opts = pycolmap.FeatureExtractionOptions()
-            opts.max_image_size = max_image_size
-            pycolmap.extract_features(
-                database, image_dir, image_names=photos, camera_mode=pycolmap.CameraMode.AUTO,
-                extraction_options=opts, device=pycolmap.Device.cpu,
-            )
-            _stage(progress, "matching")
-            pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
-            features_done.touch()
-        progress.update(2)
+    database = sfm_dir / "database.db"
+    features_done = sfm_dir / "features.done"
+    if not features_done.is_file():
+        # A database left by an interrupted extraction may be incomplete: start it afresh.
+        with contextlib.suppress(FileNotFoundError):
+            database.unlink()
+        opts = pycolmap.FeatureExtractionOptions()
+        opts.max_image_size = config.max_image_size
+        reader = pycolmap.ImageReaderOptions()
+        reader.camera_model = config.camera_model
+        mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.PER_IMAGE
+        with _explained("extracting features", "check that the photos are readable images", image_dir):
+            for k, name in enumerate(tqdm(photos, desc="SfM: features", unit="photo", disable=quiet)):
+                if config.single_camera and k > 0:
+                    reader.existing_camera_id = 1  # the camera the first photo created
+                pycolmap.extract_features(database, image_dir, image_names=[name], camera_mode=mode,
+                                          reader_options=reader, extraction_options=opts,
+                                          device=pycolmap.Device.cpu)
+        if not quiet:
+            print(f"SfM: matching {len(photos)} photos ({config.matcher})", flush=True)
+        with _explained("matching", "try --matcher exhaustive, or photos with more overlap", image_dir):
+            if config.matcher == "sequential":
+                pairing = pycolmap.SequentialPairingOptions()
+                pairing.overlap = config.overlap
+                pycolmap.match_sequential(database, pairing_options=pairing, device=pycolmap.Device.cpu)
+            else:
+                pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+        features_done.touch()
 
-        _stage(progress, "mapping")
-        sparse = sfm_dir / "sparse"
-        if sparse.exists():
-            shutil.rmtree(sparse)  # an incomplete mapping from an interrupted run
-        sparse.mkdir()
-        models = pycolmap.incremental_mapping(database, image_dir, sparse)
-        if not models:
-            raise InputError(
-                "structure-from-motion found no camera poses: the photos do not overlap enough or have too "
-                "little texture; take more overlapping photos",
-                image_dir,
-            )
-        best_id = max(models, key=lambda k: models[k].num_reg_images())
-        best = models[best_id]
-        if best.num_reg_images() < 2:
-            raise InputError("structure-from-motion registered fewer than 2 photos; add overlapping photos", image_dir)
-        best_dir = sfm_dir / "model"
-        if best_dir.exists():
-            shutil.rmtree(best_dir)
-        best_dir.mkdir()
-        best.write(best_dir)
-        write_sfm_report(best_dir, photos, sfm_dir / "report.json")
-        log.info("SfM registered %d of %d photos", best.num_reg_images(), len(photos))
-        progress.update(1)
+    sparse = sfm_dir / "sparse"
+    if sparse.exists():
+        shutil.rmtree(sparse)  # an incomplete mapping from an interrupted run
+    sparse.mkdir()
+    with (tqdm(total=len(photos), desc="SfM: registered", unit="photo", disable=quiet) as bar,
+          _explained("mapping", "take more overlapping, textured photos, or try --single-camera", image_dir)):
+        models = pycolmap.incremental_mapping(database, image_dir, sparse, next_image_callback=lambda: bar.update(1))
+    if not models:
+        raise InputError(
+            "structure-from-motion found no camera poses: the photos do not overlap enough or have too "
+            "little texture; take more overlapping photos",
+            image_dir,
+        )
+    best_id = max(models, key=lambda k: models[k].num_reg_images())
+    best = models[best_id]
+    if best.num_reg_images() < 2:
+        raise InputError("structure-from-motion registered fewer than 2 photos; add overlapping photos", image_dir)
+    best_dir = sfm_dir / "model"
+    if best_dir.exists():
+        shutil.rmtree(best_dir)
+    best_dir.mkdir()
+    best.write(best_dir)
+    stats = write_sfm_report(best_dir, photos, sfm_dir / "report.json")
+    log.info("SfM registered %d of %d photos", best.num_reg_images(), len(photos))
+    if not quiet and stats["dropped"]:
+        print(f"SfM: {len(stats['dropped'])} of {len(photos)} photos did not register: "
+              f"{', '.join(stats['dropped'][:8])}{' ...' if len(stats['dropped']) > 8 else ''}", flush=True)
 
-        _stage(progress, "undistortion")
-        if dense.exists():
-            shutil.rmtree(dense)
+    if dense.exists():
+        shutil.rmtree(dense)
+    with _explained("undistorting", "check the disk space and that the photos are still there", image_dir):
         pycolmap.undistort_images(dense, best_dir, image_dir)
-        progress.update(1)
     done.write_text(f"registered {best.num_reg_images()} of {len(photos)} photos\n")
     return dense
