@@ -1,5 +1,6 @@
 """Checkpoint loading: official layouts, pickled foreign objects, DINOv2 backbone files, safetensors."""
 
+import contextlib
 import os
 import pickle
 import struct
@@ -188,11 +189,12 @@ CRAFTED = ["reduce", "reduce_in_official_layout", "zip_stack_global_dotted", "zi
 def test_crafted_checkpoint_never_runs_code(tmp_path, kind):
     path, marker = tmp_path / f"{kind}.pth", tmp_path / "pwned"
     _crafted(kind, path, marker)
-    if kind != "config_name_dotted":  # the payload is live: an unrestricted load runs it
-        live = ("import pickle, sys, torch; p = sys.argv[1]\n"
-                "try: torch.load(p, weights_only=False)\n"
-                "except Exception: pickle.load(open(p, 'rb'))\n")
-        subprocess.run([sys.executable, "-c", live, str(path)], capture_output=True)
+    if kind != "config_name_dotted":  # the payload is live: an unrestricted load runs it (it only creates marker)
+        try:
+            torch.load(path, weights_only=False)
+        except Exception:
+            with open(path, "rb") as f, contextlib.suppress(Exception):
+                pickle.load(f)
         assert marker.exists(), "the crafted payload did not run even unrestricted"
         marker.unlink()
     with pytest.raises(InputError) as err:
