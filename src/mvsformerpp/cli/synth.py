@@ -26,13 +26,15 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.errors import InputError
     from mvsformerpp.synth import generate_dataset, generate_scene
+    from mvsformerpp.utils.output_guard import claim_output_folder
 
     if args.views < 2 or args.height < 32 or args.width < 32 or args.scenes < 1:
         raise InputError("need --views >= 2, --height/--width >= 32 and --scenes >= 1")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects)
-    if args.scenes == 1:
-        out = generate_scene(args.output, seed=args.seed, **kw)
-    else:
-        out = generate_dataset(args.output, args.scenes, seed=args.seed, **kw)
+    with claim_output_folder(args.output, kind="synth", reuse=False):
+        if args.scenes == 1:
+            out = generate_scene(args.output, seed=args.seed, **kw)
+        else:
+            out = generate_dataset(args.output, args.scenes, seed=args.seed, **kw)
     print(f"wrote {args.scenes} scene(s) to {out}")
     return 0

@@ -24,6 +24,7 @@ from typing import Literal
 import torch
 
 from mvsformerpp.errors import FormatError, InputError, MVSFormerError
+from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
 from mvsformerpp.inference.output_folder import OutputFolder, disk_full_guard, scene_fingerprint, settings_hash
 from mvsformerpp.inference.resolution import available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.inference.runner import SceneInference
@@ -216,8 +217,18 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     """Reconstruct INPUT into ``out_dir``; return the summary (also written to ``summary.json``).
 
     ``model`` replaces the preset's network (already on the device), e.g. for tests or benchmarks.
-    Finished views are skipped on a repeated call with the same settings.
+    Finished views are skipped on a repeated call with the same settings. ``out_dir`` must not be,
+    contain or lie inside INPUT, nor hold files of anything but an earlier ``reconstruct``; one run
+    at a time holds it (:mod:`mvsformerpp.utils.output_guard`).
     """
+    from mvsformerpp.utils.output_guard import claim_output_folder
+
+    with claim_output_folder(out_dir, [input_path], "reconstruct"):
+        return _reconstruct(input_path, out_dir, config, quiet, model)
+
+
+def _reconstruct(input_path: str | Path, out_dir: str | Path, config: ReconstructConfig, quiet: bool,
+                 model: torch.nn.Module | None) -> dict:
     from tqdm import tqdm
 
     timings: dict[str, float] = {}
@@ -235,7 +246,8 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
-    state = settings_hash({**config.result_settings(), **resolved})
+    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved},
+                             weights_identity(config.checkpoint) if model is None else None)
 
     # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
     from mvsformerpp.io.mvsnet import write_mvsnet_scene
@@ -249,7 +261,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
                                       "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
                                       "source_format": full.source_format, "num_views_in_input": len(full)})
 
-    todo = [i for i in range(len(scene)) if not folder.view_done(i, state)]
+    todo = [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
     t1 = time.perf_counter()
     cache_stats = None
     if todo:
@@ -263,7 +275,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
                                 cache_bytes=config.cache_mb << 20)
         for i in tqdm(todo, desc="Depth maps", unit="view", disable=quiet):
             res = runner.infer(i)
-            folder.write_view(i, res.depth, res.confidence, state)
+            folder.write_view(i, res.depth, res.confidence, keys[i])
         cache_stats = runner.cache.stats()
     timings["depth_s"] = time.perf_counter() - t1
     timings["views_computed"] = len(todo)
@@ -272,7 +284,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     ply = folder.root / "fused.ply"
     points = None
     if config.fusion != "none":
-        fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
+        fusion_state = settings_hash({"depth": keys, "fusion": config.fusion})
         if not folder.fusion_done(fusion_state):
             with disk_full_guard(ply):
                 _run_fusion(folder.root, ply, config.fusion, quiet)
