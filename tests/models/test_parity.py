@@ -6,6 +6,8 @@ import torch
 from parity_utils import fixture_inputs, load_fixture, official_keys, rel_err, rule_state_dict
 
 from mvsformerpp.models import build_model
+from mvsformerpp.models import mvsformer as mvsformer_module
+from mvsformerpp.models.hypotheses import refined_hypotheses
 from mvsformerpp.models.loss import cascade_loss
 
 TOL = 1e-4
@@ -24,7 +26,21 @@ def test_state_dict_matches_official_keys_and_counts(paper_model):
     assert sum(p.numel() for p in paper_model.parameters() if p.requires_grad) == 39_473_933
 
 
-def test_reproduces_official_eval_and_train_outputs(paper_model):
+def test_reproduces_official_eval_and_train_outputs(paper_model, monkeypatch):
+    """Every continuous output to TOL relative; argmax-derived outputs only where the argmax is decided.
+
+    Continuous outputs (logits, soft-argmax depths, confidences, eval hypotheses) are compared at every
+    pixel. The train-mode depth is an argmax: at a pixel whose two best fixture logits differ by less
+    than the noise between CPU kernels, another machine may pick the neighbouring hypothesis. Since the
+    logits are checked to ``atol = TOL * max|logits|`` at every pixel, the argmax provably agrees where
+    the fixture's top-2 margin exceeds ``2 * atol``; the depth is compared there and the other pixels
+    are counted. Later train-mode stages place their hypotheses around the previous stage's argmax
+    depth, and a 3-D U-Net spreads one moved window over its whole receptive field, so an upstream
+    noise-level flip would reach most later-stage pixels (with the rule weights' flat logits, 55-99%
+    of stage 4 if excluded by margin). Instead each train-mode stage starts from the fixture's own
+    previous-stage depth (teacher forcing): its logits and loss are then continuous functions of the
+    fixture's inputs and are compared everywhere.
+    """
     fx = load_fixture()
     imgs, proj, depth_values, tmp = fixture_inputs(fx)
     model = paper_model
@@ -39,7 +55,15 @@ def test_reproduces_official_eval_and_train_outputs(paper_model):
     errors["eval/refined_depth"] = rel_err(out["depth"], fx["eval/refined_depth"])
     errors["eval/photometric_confidence"] = rel_err(out["photometric_confidence"], fx["eval/photometric_confidence"])
 
-    # Train mode: batch-statistics BatchNorm, argmax depth, per-stage CE losses (fresh rule weights).
+    # Train mode: batch-statistics BatchNorm, argmax depth, per-stage CE losses (fresh rule weights),
+    # each stage's hypotheses around the fixture's previous-stage argmax depth.
+    fixture_depth = {fx[f"train/stage{s}/depth"].shape[-2:]: torch.from_numpy(fx[f"train/stage{s}/depth"])
+                     for s in range(1, 4)}
+
+    def teacher_forced(depth, *args, **kwargs):
+        return refined_hypotheses(fixture_depth[tuple(depth.shape[-2:])], *args, **kwargs)
+
+    monkeypatch.setattr(mvsformer_module, "refined_hypotheses", teacher_forced)
     model.load_state_dict(rule_state_dict(model), strict=True)
     model.train()
     with torch.no_grad():
@@ -47,15 +71,22 @@ def test_reproduces_official_eval_and_train_outputs(paper_model):
     gt = {f"stage{s}": torch.from_numpy(fx[f"input/depth_gt/stage{s}"]) for s in range(1, 5)}
     mask = {f"stage{s}": torch.from_numpy(fx[f"input/mask/stage{s}"]) for s in range(1, 5)}
     _, losses = cascade_loss(out, gt, mask)
+    excluded = {}
     for s in range(1, 5):
-        errors[f"train/stage{s}/depth"] = rel_err(out[f"stage{s}"]["depth"], fx[f"train/stage{s}/depth"])
-        errors[f"train/stage{s}/prob_volume_pre"] = rel_err(
-            out[f"stage{s}"]["prob_volume_pre"], fx[f"train/stage{s}/prob_volume_pre"]
-        )
+        logits = fx[f"train/stage{s}/prob_volume_pre"]
+        errors[f"train/stage{s}/prob_volume_pre"] = rel_err(out[f"stage{s}"]["prob_volume_pre"], logits)
         errors[f"train/loss/stage{s}"] = rel_err(losses[f"stage{s}"].item(), fx[f"train/loss/stage{s}"])
+        top2 = np.sort(logits, axis=1)[:, -2:]
+        decided = top2[:, 1] - top2[:, 0] > 2 * TOL * np.abs(logits).max()
+        excluded[s] = int((~decided).sum())
+        ours, ref = out[f"stage{s}"]["depth"].numpy(), fx[f"train/stage{s}/depth"]
+        errors[f"train/stage{s}/depth"] = rel_err(ours[decided], ref[decided])
+    print(f"train-mode depth compared where the argmax is decided; pixels excluded per stage: {excluded}")
     bad = {k: v for k, v in errors.items() if not v <= TOL}
     assert not bad, f"arrays beyond {TOL} relative error: {bad}"
     assert len(errors) == 16 + 2 + 12
+    # The margin rule leaves most pixels compared (it excludes 101 of 1280 at stage 1 with these weights).
+    assert all(n < 0.15 * fx[f"train/stage{s}/depth"].size for s, n in excluded.items()), excluded
     # The depth maps agree far closer than the tolerance.
     assert max(v for k, v in errors.items() if k.endswith("/depth")) < 1e-5
     model.eval()
