@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+MAX_SIZE = 8192  # pixels per side
+MAX_VIEWS = 1000
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -29,7 +32,12 @@ def run(args: argparse.Namespace) -> int:
     from mvsformerpp.utils.output_guard import claim_output_folder
 
     if args.views < 2 or args.height < 32 or args.width < 32 or args.scenes < 1:
-        raise InputError("need --views >= 2, --height/--width >= 32 and --scenes >= 1")
+        raise InputError(f"need --views >= 2, --height/--width >= 32 and --scenes >= 1, got --views {args.views} "
+                         f"--height {args.height} --width {args.width} --scenes {args.scenes}")
+    if args.height > MAX_SIZE or args.width > MAX_SIZE or args.views > MAX_VIEWS:
+        raise InputError(f"--height and --width must be at most {MAX_SIZE} and --views at most {MAX_VIEWS} "
+                         f"(rendering needs about 100 bytes per pixel), got --height {args.height} --width "
+                         f"{args.width} --views {args.views}")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects)
     with claim_output_folder(args.output, kind="synth", reuse=False):
         if args.scenes == 1:

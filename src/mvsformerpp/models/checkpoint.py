@@ -76,7 +76,8 @@ def read_torch_file(path: str | Path) -> object:
             return torch.load(path, map_location="cpu", weights_only=True)
     except pickle.UnpicklingError as e:
         if not _refused_code(str(e)):
-            raise InputError(f"cannot read checkpoint ({str(e).strip().splitlines()[0][:200]})", path) from e
+            raise InputError("cannot read checkpoint: not a PyTorch checkpoint (.pth/.pt/.ckpt) nor a .safetensors "
+                             "file", path) from e
         found = _REFUSED_GLOBAL.search(str(e))
         what = f"the Python object {found.group(1) or found.group(2)}" if found else "Python code or objects"
         raise InputError(

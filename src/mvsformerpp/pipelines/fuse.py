@@ -8,8 +8,8 @@ the images (the cameras are then scaled to them).
 
 from __future__ import annotations
 
+import logging
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -21,6 +21,8 @@ from mvsformerpp.io.images import read_image
 from mvsformerpp.io.mvsnet import load_mvsnet_scene
 from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.io.ply import write_ply
+
+log = logging.getLogger(__name__)
 
 
 def _read_confidence(folder: Path, stem: str, shape) -> np.ndarray | None:
@@ -51,6 +53,10 @@ def load_depth_folder(folder: str | Path):
         depth = read_pfm(path)
         if depth.ndim != 2:
             raise FormatError("depth map must have one channel (Pf)", path)
+        h, w = depth.shape
+        if abs(w * view.height - h * view.width) > max(w, h, view.width, view.height):  # > 1 px off the aspect
+            raise FormatError(f"depth map is {w}x{h}, which is not the shape of its {view.width}x{view.height} photo "
+                              "(depth maps may be smaller than the photos, with the same aspect ratio)", path)
         depths.append(depth)
         confs.append(_read_confidence(folder, view.name, depth.shape))
         images.append(read_image(view.image_path))
@@ -75,11 +81,9 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
     with tqdm(total=len(scene), desc=f"Fusion ({config.method})", unit="view", disable=quiet) as bar:
         xyz, rgb = fuse_depth_maps(scene, depths, confs, images, config, device, progress=lambda r: bar.update(1))
     if len(xyz) == 0:
-        warnings.warn(
-            "fusion kept no point: the depth maps disagree everywhere or all confidences are below "
-            f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
-            "--num-consistent 1 or --fusion dynamic); "
-            "writing an empty point cloud", stacklevel=2)
+        from mvsformerpp.pipelines.empty_cloud import explain_empty_cloud
+
+        log.warning(explain_empty_cloud(scene, depths, confs, images, config, folder, out_ply, device))
     write_ply(out_ply, xyz, rgb)
     if not quiet:
         print(f"{len(xyz):,} points in {time.perf_counter() - t0:.1f} s -> {out_ply}")

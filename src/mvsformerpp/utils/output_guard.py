@@ -171,3 +171,47 @@ def _remove_if_unused(out: Path) -> None:
         files = [Path(d, f) for d, _, names in os.walk(out) for f in names]
         if all(f.parent == out and f.name in (MARKER, LOCK) for f in files):
             shutil.rmtree(out, ignore_errors=True)
+
+
+@contextlib.contextmanager
+def claim_output_file(path: str | Path, magic: bytes, what: str) -> Iterator[Path]:
+    """Check that ``path`` is new or a file of this kind (it starts with ``magic``), then hold it for the block.
+
+    Inside a folder an earlier run of this package wrote, the folder's lock is held too (so fusing
+    into a folder that ``reconstruct`` is writing waits for nobody and mixes nothing); the temporaries
+    a killed run left for this file name are removed.
+    """
+    path = Path(path)
+    if path.exists():
+        if not path.is_file():
+            raise InputError(f"the output exists and is not a file; choose another -o {what}", path)
+        with open(path, "rb") as f:
+            if f.read(len(magic)) != magic:
+                raise InputError(f"the output exists and is not a {what} file; choose another -o so that it is "
+                                 "not overwritten", path)
+    folder = path.parent
+    lock = folder_lock(folder) if _written_by(folder) is not None else contextlib.nullcontext()
+    with lock:
+        if folder.is_dir():
+            for p in folder.glob(f".{glob_escape(path.name)}.*.tmp"):
+                with contextlib.suppress(FileNotFoundError):
+                    p.unlink()
+        yield path
+
+
+@contextlib.contextmanager
+def writing(path: str | Path) -> Iterator[None]:
+    """Turn a full disk, a denied permission or a read-only file system while writing ``path`` into InputError."""
+    try:
+        yield
+    except OSError as e:
+        if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR):
+            raise
+        advice = ("free some space and run the command again" if e.errno in (errno.ENOSPC, errno.EDQUOT)
+                  else "choose a location you can write to")
+        raise InputError(f"cannot write this file ({e.strerror}); {advice}. Files written before are kept",
+                         path) from e
+
+
+def glob_escape(name: str) -> str:
+    return re.sub(r"([*?\[])", r"[\1]", name)
