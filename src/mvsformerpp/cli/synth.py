@@ -23,6 +23,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--width", type=int, default=320)
     p.add_argument("--objects", type=int, help="number of objects (default: 3-6, from the seed)")
     p.add_argument("--scenes", type=int, default=1, help="number of scenes (more than 1: a dataset)")
+    p.add_argument("--style", choices=["classic", "train", "heldout"], default="classic",
+                   help="classic: objects before a wall (tests); train: tables, rooms, facades and objects on a "
+                   "ring with photo textures, gloss, exposure changes, blur and noise (the default model's training "
+                   "data); heldout: a style training never sees (evaluation)")
     p.set_defaults(func=run)
 
 
@@ -38,7 +42,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--height and --width must be at most {MAX_SIZE} and --views at most {MAX_VIEWS} "
                          f"(rendering needs about 100 bytes per pixel), got --height {args.height} --width "
                          f"{args.width} --views {args.views}")
-    kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects)
+    kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
+              style=args.style)
     with claim_output_folder(args.output, kind="synth", reuse=False):
         if args.scenes == 1:
             out = generate_scene(args.output, seed=args.seed, **kw)

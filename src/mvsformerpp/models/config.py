@@ -75,3 +75,18 @@ def get_config(preset: str = "paper", **overrides) -> ModelConfig:
     if preset not in PRESETS:
         raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
     return dataclasses.replace(PRESETS[preset], **overrides)
+
+
+# Fields that change only how a network runs or trains, not which weights fit it.
+_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", "extra")
+
+
+def architecture(config: ModelConfig) -> dict:
+    """The fields of ``config`` that decide the shapes of the weights."""
+    return {k: v for k, v in config.to_dict().items() if k not in _NON_ARCHITECTURE}
+
+
+def presets_for(config: ModelConfig) -> list[str]:
+    """Names of the presets whose weights have the shapes of ``config``'s network (may be empty)."""
+    arch = architecture(config)
+    return [name for name, preset in PRESETS.items() if architecture(preset) == arch]

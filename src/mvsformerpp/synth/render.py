@@ -12,7 +12,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvsformerpp.synth.shapes import Box, Cylinder, Plane, Sphere
+from mvsformerpp.synth.photos import sample_texture
+from mvsformerpp.synth.shapes import Box, Cylinder, Plane, Sphere, may_hit
 from mvsformerpp.synth.textures import albedo
 
 TEXTURES = ("noise", "checker", "stripes", "marble", "flat")
@@ -23,9 +24,19 @@ LIGHT = np.array([0.4, -0.5, 0.77]) / np.linalg.norm([0.4, -0.5, 0.77])
 class Surface:
     shape: object
     texture: str
+    """A solid texture of :func:`albedo` (``noise``, ``checker``, ...) or ``photo`` (an image texture)."""
     colors: np.ndarray  # [2, 3]
     seed: int
     scale: float = 1.0
+    photo: int = 0
+    """``photo`` textures: index into the texture set (modulo its size)."""
+    texels_per_unit: float = 100.0
+    """``photo`` textures: texels of the finest level per world unit."""
+    frame: np.ndarray | None = None
+    """``photo`` textures: 3x3 rotation whose columns are the texture-projection axes (None = world axes)."""
+    specular: float = 0.0
+    """Strength of the view-dependent highlight (0 = matte); glossy surfaces break photo-consistency."""
+    shininess: float = 30.0
 
 
 @dataclass
@@ -33,6 +44,13 @@ class Camera:
     K: np.ndarray
     R: np.ndarray
     t: np.ndarray
+    gain: np.ndarray | None = None
+    """Per-channel exposure x white balance of this view (None = 1)."""
+    blur: float = 0.0
+    """Gaussian blur sigma in pixels (defocus, motion)."""
+    noise: float = 0.0
+    """Sensor-noise standard deviation (in [0, 1] intensity units)."""
+    noise_seed: int = 0
 
     @property
     def center(self) -> np.ndarray:
@@ -46,6 +64,15 @@ class SynthScene:
     width: int
     height: int
     meta: dict = field(default_factory=dict)
+    light: np.ndarray = field(default_factory=lambda: LIGHT.copy())
+    """Unit direction towards the (directional) light, fixed in the world."""
+    ambient: float = 0.35
+    background: np.ndarray = field(default_factory=lambda: np.zeros(3))
+    """Colour of rays that hit nothing (their depth is 0: invalid)."""
+    supersample: int = 1
+    """Colour samples per pixel side (2 = 4 rays per pixel, anti-aliased); depth is always at the centre."""
+    textures: tuple = ()
+    """Mip pyramids that ``photo`` surfaces index (see :mod:`mvsformerpp.synth.photos`)."""
 
 
 def look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -59,10 +86,27 @@ def look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple
     return R, -R @ center
 
 
+STYLES = ("classic", "train", "heldout")
+
+
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
-                 num_objects: int | None = None, arc_degrees: float = 50.0) -> SynthScene:
-    """A random scene: several objects of different shapes, sizes, depths and textures on a ground
-    plane before a wall, seen by ``num_views`` cameras spread over ``arc_degrees`` on an arc."""
+                 num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic") -> SynthScene:
+    """A random scene, deterministic for (seed, style, sizes).
+
+    ``classic``: several objects of different shapes, sizes, depths and textures on a ground plane
+    before a wall, seen by ``num_views`` cameras spread over ``arc_degrees`` on an arc (tests).
+    ``train``: the varied scenes of :mod:`mvsformerpp.synth.layouts` (tables, rooms, facades, objects
+    on a ring; photo textures, gloss, exposure changes, blur, noise) used to train the default model.
+    ``heldout``: a style training never sees (floating ellipsoids and tilted boxes, other textures,
+    spiral camera paths), for evaluation.
+    """
+    if style != "classic":
+        from mvsformerpp.synth.layouts import heldout_scene, training_scene
+
+        if style not in STYLES:
+            raise ValueError(f"unknown synthetic style {style!r}; choose one of {STYLES}")
+        build = training_scene if style == "train" else heldout_scene
+        return build(seed, num_views, height, width, num_objects)
     rng = np.random.default_rng(seed)
     pal = lambda: rng.uniform(0.05, 0.95, size=(2, 3))  # noqa: E731
     surfaces = [
@@ -98,42 +142,126 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
 
 
 def cast(scene: SynthScene, origins: np.ndarray, dirs: np.ndarray):
-    """First hit of rays: (t [N], surface index [N] (-1 = miss), normal [N,3])."""
+    """First hit of rays: (t [N], surface index [N] (-1 = miss), normal [N,3]).
+
+    Finite shapes are only intersected with the rays that pass their bounding sphere, and normals
+    are computed once, for the winning surface of each ray.
+    """
+    origins = np.broadcast_to(origins, dirs.shape)
     best_t = np.full(len(dirs), np.inf)
     best_s = np.full(len(dirs), -1)
-    best_n = np.zeros_like(dirs)
     for i, surf in enumerate(scene.surfaces):
-        t, n = surf.shape.intersect(origins, dirs)
-        closer = t < best_t
-        best_t = np.where(closer, t, best_t)
-        best_s = np.where(closer, i, best_s)
-        best_n = np.where(closer[:, None], n, best_n)
+        rays = np.flatnonzero(may_hit(surf.shape, origins, dirs))
+        if len(rays) == 0:
+            continue
+        t, _ = surf.shape.intersect(origins[rays], dirs[rays])
+        closer = t < best_t[rays]
+        best_t[rays[closer]] = t[closer]
+        best_s[rays[closer]] = i
+    best_n = np.zeros_like(dirs)
+    for i in np.unique(best_s[best_s >= 0]):
+        rays = np.flatnonzero(best_s == i)
+        _, n = scene.surfaces[i].shape.intersect(origins[rays], dirs[rays])
+        best_n[rays] = n
     return best_t, best_s, best_n
 
 
-def shade(scene: SynthScene, points: np.ndarray, surf: np.ndarray, normals: np.ndarray) -> np.ndarray:
-    """Lambertian colour [N,3] in [0,1] under one fixed light: the same in every view."""
+def _photo_albedo(scene: SynthScene, s: Surface, p: np.ndarray, n: np.ndarray, footprint: np.ndarray):
+    """Image texture projected along the dominant axis of the normal in the surface's texture frame."""
+    frame = np.eye(3) if s.frame is None else s.frame
+    q, nl = p @ frame, np.abs(n @ frame)
+    axis = nl.argmax(1)
+    first = np.where(axis == 0, 1, 0)
+    second = np.where(axis == 2, 1, 2)
+    rows = np.arange(len(p))
+    uv = np.stack([q[rows, first], q[rows, second]], 1) * s.texels_per_unit
+    uv = uv + np.array([37.0, 53.0]) * (s.seed % 97)  # a different crop of the photo per surface
+    levels = scene.textures[s.photo % len(scene.textures)]
+    tilt = np.maximum(nl[rows, axis], 0.3)
+    rgb = sample_texture(levels, uv, footprint * s.texels_per_unit / tilt)
+    return rgb * s.colors[1] + s.colors[0] * (1 - s.colors[1])  # tint, keeping the photo's structure
+
+
+def shade(scene: SynthScene, points: np.ndarray, surf: np.ndarray, normals: np.ndarray,
+          view_dirs: np.ndarray | None = None, footprint: np.ndarray | None = None) -> np.ndarray:
+    """Colour [N,3] in [0,1]: albedo x (ambient + Lambert) under the scene's fixed light, plus a
+    Blinn-Phong highlight on glossy surfaces (view-dependent: needs ``view_dirs``, unit, towards the
+    camera). ``footprint``: world size of one pixel at each point (for texture filtering)."""
     rgb = np.zeros_like(points)
+    spec = np.zeros(len(points))
     for i, s in enumerate(scene.surfaces):
         m = surf == i
-        if m.any():
+        if not m.any():
+            continue
+        if s.texture == "photo":
+            fp = footprint[m] if footprint is not None else np.ones(int(m.sum()))
+            rgb[m] = _photo_albedo(scene, s, points[m], normals[m], fp)
+        else:
             rgb[m] = albedo(s.texture, points[m], s.colors, s.seed, s.scale)
-    lam = np.abs(normals @ LIGHT)  # two-sided
-    return np.clip(rgb * (0.35 + 0.65 * lam)[:, None], 0, 1)
+        if s.specular > 0 and view_dirs is not None:
+            nrm = normals[m] * np.sign(np.einsum("ij,ij->i", normals[m], view_dirs[m]))[:, None]  # face the viewer
+            half = view_dirs[m] + scene.light
+            half /= np.maximum(np.linalg.norm(half, axis=1, keepdims=True), 1e-12)
+            spec[m] = s.specular * np.clip(np.einsum("ij,ij->i", nrm, half), 0, 1) ** s.shininess
+    lam = np.abs(normals @ scene.light)  # two-sided
+    return np.clip(rgb * (scene.ambient + (1 - scene.ambient) * lam)[:, None] + spec[:, None], 0, 1)
+
+
+def _pixel_rays(cam: Camera, xs: np.ndarray, ys: np.ndarray) -> np.ndarray:
+    pix = np.stack([xs, ys, np.ones_like(xs)], axis=1)
+    return pix @ np.linalg.inv(cam.K).T @ cam.R  # rows: R^T K^-1 p, so t = z-depth
+
+
+def _colour(scene: SynthScene, cam: Camera, dirs: np.ndarray, t: np.ndarray, surf: np.ndarray,
+            normals: np.ndarray) -> np.ndarray:
+    hit = np.isfinite(t)
+    pts = cam.center + np.where(hit, t, 0)[:, None] * dirs
+    rgb = np.broadcast_to(scene.background, pts.shape).copy()
+    if hit.any():
+        to_cam = cam.center - pts[hit]
+        dist = np.linalg.norm(to_cam, axis=1, keepdims=True)
+        footprint = t[hit] / cam.K[0, 0]
+        rgb[hit] = shade(scene, pts[hit], surf[hit], normals[hit], to_cam / np.maximum(dist, 1e-12), footprint)
+    return rgb
+
+
+def _camera_effects(image: np.ndarray, cam: Camera) -> np.ndarray:
+    """Exposure and white balance, blur, then sensor noise: what differs between photos of one scene."""
+    if cam.gain is not None:
+        image = image * cam.gain
+    if cam.blur > 0:
+        from scipy.ndimage import gaussian_filter
+
+        image = gaussian_filter(image, sigma=(cam.blur, cam.blur, 0), mode="nearest")
+    if cam.noise > 0:
+        image = image + np.random.default_rng(cam.noise_seed).normal(0, cam.noise, image.shape)
+    return np.clip(image, 0, 1)
 
 
 def render_view(scene: SynthScene, cam: Camera):
-    """(image uint8 [H,W,3], depth float32 [H,W] (0 = nothing hit), world points [H,W,3])."""
+    """(image uint8 [H,W,3], depth float32 [H,W] (0 = nothing hit), world points [H,W,3]).
+
+    Depth and points are exact at pixel centres; with ``scene.supersample`` = s the colour averages
+    s x s rays per pixel. The camera's exposure, blur and noise are applied last.
+    """
     H, W = scene.height, scene.width
     ys, xs = np.mgrid[0:H, 0:W].astype(np.float64)
-    pix = np.stack([xs.ravel() + 0.5, ys.ravel() + 0.5, np.ones(H * W)], axis=1)
-    dirs = pix @ np.linalg.inv(cam.K).T @ cam.R  # rows: R^T K^-1 p, so t = z-depth
+    dirs = _pixel_rays(cam, xs.ravel() + 0.5, ys.ravel() + 0.5)
     origins = np.broadcast_to(cam.center, dirs.shape)
     t, surf, normals = cast(scene, origins, dirs)
     hit = np.isfinite(t)
     pts = origins + np.where(hit, t, 0)[:, None] * dirs
-    rgb = np.zeros_like(pts)
-    rgb[hit] = shade(scene, pts[hit], surf[hit], normals[hit])
-    image = np.round(rgb * 255).astype(np.uint8).reshape(H, W, 3)
+    ss = max(1, int(scene.supersample))
+    if ss == 1:
+        rgb = _colour(scene, cam, dirs, t, surf, normals)
+    else:
+        rgb = np.zeros_like(pts)
+        for oy in (np.arange(ss) + 0.5) / ss:
+            for ox in (np.arange(ss) + 0.5) / ss:
+                d = _pixel_rays(cam, xs.ravel() + ox, ys.ravel() + oy)
+                rgb += _colour(scene, cam, d, *cast(scene, origins, d))
+        rgb /= ss * ss
+    rgb = _camera_effects(rgb.reshape(H, W, 3), cam)
+    image = np.round(rgb * 255).astype(np.uint8)
     depth = np.where(hit, t, 0).astype(np.float32).reshape(H, W)
     return image, depth, pts.reshape(H, W, 3)

@@ -13,6 +13,20 @@ import numpy as np
 INF = np.inf
 
 
+def may_hit(shape, o: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Rays [N] that can hit ``shape``: they pass within its bounding sphere (all rays if it has none)."""
+    if not hasattr(shape, "bound"):
+        return np.ones(len(d), dtype=bool)
+    center, radius = shape.bound()
+    oc = o - center
+    a = np.einsum("ij,ij->i", d, d)
+    b = np.einsum("ij,ij->i", oc, d)
+    c = np.einsum("ij,ij->i", oc, oc) - (radius * 1.001 + 1e-9) ** 2
+    # hits the sphere at some t > 0: discriminant >= 0 and the far root is positive
+    disc = b * b - a * c
+    return (disc >= 0) & ((-b + np.sqrt(np.maximum(disc, 0))) > 0)
+
+
 @dataclass
 class Plane:
     normal: np.ndarray  # unit [3]
@@ -44,6 +58,9 @@ class Sphere:
         hit = o + np.where(np.isfinite(t), t, 0)[:, None] * d
         return t, (hit - self.center) / self.radius
 
+    def bound(self):
+        return self.center, self.radius
+
 
 @dataclass
 class Box:
@@ -72,6 +89,9 @@ class Box:
         n_local = np.zeros_like(d)
         n_local[np.arange(len(d)), axis] = -np.sign(ld[np.arange(len(d)), axis])
         return t, n_local @ R.T
+
+    def bound(self):
+        return self.center, float(np.linalg.norm(self.half))
 
 
 @dataclass
@@ -107,3 +127,52 @@ class Cylinder:
         n[:, :2] = (hit[:, :2] - self.center_xy) / self.radius
         n = np.where((t_cap < t_side)[:, None], np.array([0, 0, 1.0]), n)
         return t, n
+
+    def bound(self):
+        center = np.array([self.center_xy[0], self.center_xy[1], self.base + self.height / 2])
+        return center, float(np.hypot(self.radius, self.height / 2))
+
+
+@dataclass
+class Rect:
+    """A finite two-sided rectangle: ``center + a u + b v``, |a| <= half_u, |b| <= half_v (u, v orthonormal)."""
+
+    center: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    half_u: float
+    half_v: float
+
+    def intersect(self, o, d):
+        n = np.cross(self.u, self.v)
+        nd = d @ n
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = ((self.center - o) @ n) / nd
+        q = o + np.where(np.isfinite(t), t, 0)[:, None] * d - self.center
+        inside = (np.abs(q @ self.u) <= self.half_u) & (np.abs(q @ self.v) <= self.half_v)
+        t = np.where((np.abs(nd) > 1e-12) & (t > 1e-6) & inside, t, INF)
+        return t, np.broadcast_to(n, d.shape)
+
+    def bound(self):
+        return self.center, float(np.hypot(self.half_u, self.half_v))
+
+
+@dataclass
+class Ellipsoid:
+    """An ellipsoid with semi-axes ``radii`` along the columns of the rotation ``rot`` (world = rot @ local)."""
+
+    center: np.ndarray
+    radii: np.ndarray
+    rot: np.ndarray
+
+    def intersect(self, o, d):
+        lo = ((o - self.center) @ self.rot) / self.radii  # into the unit-sphere frame: t is unchanged
+        ld = (d @ self.rot) / self.radii
+        t, _ = Sphere(np.zeros(3), 1.0).intersect(lo, ld)
+        hit = lo + np.where(np.isfinite(t), t, 0)[:, None] * ld
+        n = (hit / self.radii) @ self.rot.T  # gradient of the implicit function, back to world
+        n = n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+        return t, n
+
+    def bound(self):
+        return self.center, float(np.max(self.radii))

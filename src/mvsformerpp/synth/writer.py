@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 from PIL import Image
 
+from mvsformerpp.errors import InputError
 from mvsformerpp.io.mvsnet import MVSNetCam, write_cam, write_pair
 from mvsformerpp.io.pfm import write_pfm
 from mvsformerpp.io.ply import write_ply
@@ -31,19 +32,21 @@ def _pairs(centers: np.ndarray, num_neighbors: int) -> dict:
 
 
 def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, height: int = 256, width: int = 320,
-                   num_objects: int | None = None, gt_points: int = 200_000) -> Path:
-    """Render a scene and write it (deterministic for a seed):
+                   num_objects: int | None = None, gt_points: int = 200_000, style: str = "classic") -> Path:
+    """Render a scene of ``style`` (see :func:`random_scene`) and write it (deterministic for a seed):
 
     ``images/NNNNNNNN.png``, ``cams/NNNNNNNN_cam.txt`` (4-number depth line from the GT depth range),
     ``pair.txt``, ``depth_gt/NNNNNNNN.pfm`` (exact z-depth), ``masks/NNNNNNNN.png`` (255 = valid
     depth), ``gt_surface.ply`` (coloured points on the visible surfaces) and ``scene.json``.
     """
     out = Path(out_dir)
-    scene = random_scene(seed, num_views, height, width, num_objects)
+    scene = random_scene(seed, num_views, height, width, num_objects, style=style)
     all_pts, all_rgb = [], []
     for i, cam in enumerate(scene.cameras):
         image, depth, pts = render_view(scene, cam)
         valid = depth > 0
+        if not valid.any():
+            raise InputError(f"synthetic scene seed {seed} ({style}): view {i} sees nothing; use another seed")
         stem = f"{i:08d}"
         _save_png(out / "images" / f"{stem}.png", image)
         _save_png(out / "masks" / f"{stem}.png", (valid * 255).astype(np.uint8))
@@ -63,7 +66,7 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
         pts, rgb = pts[keep], rgb[keep]
     write_ply(out / "gt_surface.ply", pts.astype(np.float32), rgb)
     atomic_write_text(out / "scene.json", json.dumps(
-        {"seed": seed, "num_views": num_views, "height": height, "width": width,
+        {"seed": seed, "style": style, "num_views": num_views, "height": height, "width": width,
          "surfaces": [type(s.shape).__name__ + ":" + s.texture for s in scene.surfaces]}, indent=2))
     return out
 

@@ -1,0 +1,115 @@
+"""The training and held-out synthetic styles: exact, view-consistent ground truth; deterministic."""
+
+import numpy as np
+import pytest
+
+from mvsformerpp.synth import photos
+from mvsformerpp.synth.layouts import LAYOUTS, heldout_scene, training_scene
+from mvsformerpp.synth.render import cast, random_scene, render_view
+from mvsformerpp.synth.shapes import Box, Cylinder, Ellipsoid, Rect, Sphere, may_hit
+
+
+def _consistency(scene, a: int, b: int):
+    """Back-project view a's GT depth and look from view b: (share of view-a pixels seen by b, max relative
+    error of the depth b's own ray cast finds there where visible, whether every other point is occluded)."""
+    H, W = scene.height, scene.width
+    cam_a, cam_b = scene.cameras[a], scene.cameras[b]
+    _, depth, pts = render_view(scene, cam_a)
+    valid = depth.reshape(-1) > 0
+    X = pts.reshape(-1, 3)[valid]
+    # the renderer's own convention: X = C + z * R^T K^-1 [u, v, 1]; check it through the projection matrices
+    x_cam = X @ cam_a.R.T + cam_a.t
+    np.testing.assert_allclose(x_cam[:, 2], depth.reshape(-1)[valid], rtol=1e-6)  # float32 depth maps
+    xb = X @ cam_b.R.T + cam_b.t
+    uvw = xb @ cam_b.K.T
+    u, v, z = uvw[:, 0] / uvw[:, 2], uvw[:, 1] / uvw[:, 2], xb[:, 2]
+    inside = (z > 0) & (u >= 0) & (u < W) & (v >= 0) & (v < H)
+    dirs = np.stack([u, v, np.ones_like(u)], 1)[inside] @ np.linalg.inv(cam_b.K).T @ cam_b.R
+    t_hit, _, _ = cast(scene, np.broadcast_to(cam_b.center, dirs.shape), dirs)
+    zi = z[inside]
+    rel = np.abs(t_hit - zi) / zi
+    visible = rel < 1e-6
+    occluded_only = bool((t_hit[~visible] < zi[~visible] * (1 + 1e-9)).all())
+    return visible.sum() / valid.sum(), occluded_only
+
+
+@pytest.mark.parametrize("layout", LAYOUTS)
+def test_training_layouts_have_view_consistent_depth(layout):
+    scene = training_scene(4, num_views=4, height=48, width=64, layout=layout)
+    seen, occluded_only = _consistency(scene, 0, 1)
+    assert occluded_only  # a point of view 0 is either on view 1's surface or hidden behind a nearer one
+    assert seen > 0.3  # neighbouring views overlap
+
+
+def test_heldout_style_has_view_consistent_depth():
+    scene = heldout_scene(9, num_views=3, height=48, width=64)
+    seen, occluded_only = _consistency(scene, 0, 1)
+    assert occluded_only and seen > 0.3
+
+
+@pytest.mark.parametrize("style", ["train", "heldout"])
+def test_styles_are_deterministic_per_seed(style):
+    a = random_scene(5, 3, 40, 48, style=style)
+    b = random_scene(5, 3, 40, 48, style=style)
+    c = random_scene(6, 3, 40, 48, style=style)
+    ia, da, _ = render_view(a, a.cameras[2])
+    ib, db, _ = render_view(b, b.cameras[2])
+    ic, _, _ = render_view(c, c.cameras[2])
+    assert np.array_equal(ia, ib) and np.array_equal(da, db)
+    assert not np.array_equal(ia, ic)
+
+
+def test_views_differ_in_exposure_and_blur_but_not_geometry():
+    scene = training_scene(2, num_views=2, height=48, width=64, layout="table")
+    cam = scene.cameras[0]
+    img, depth, _ = render_view(scene, cam)
+    cam.gain, cam.blur, cam.noise = np.array([1.4, 1.4, 1.4]), 0.0, 0.0
+    bright, depth2, _ = render_view(scene, cam)
+    np.testing.assert_array_equal(depth, depth2)
+    assert bright.astype(float).mean() > img.astype(float).mean() * 1.1
+
+
+def test_every_layout_is_drawn_and_heldout_is_separate():
+    kinds = {training_scene(s, 2, 32, 32).meta["layout"] for s in range(40)}
+    assert kinds == set(LAYOUTS)
+    assert heldout_scene(0, 2, 32, 32).meta["style"] == "heldout"
+    with pytest.raises(ValueError, match="unknown synthetic style"):
+        random_scene(0, 2, 32, 32, style="nope")
+
+
+def test_bounding_spheres_never_drop_a_hit():
+    rng = np.random.default_rng(0)
+    shapes = [Sphere(np.array([0.1, 0, 0]), 0.5), Box(np.array([0, 0.2, 0]), np.array([0.3, 0.5, 0.2]), 0.7),
+              Cylinder(np.array([0.0, 0.1]), 0.3, -0.2, 0.8), Rect(np.zeros(3), np.array([1.0, 0, 0]),
+                                                                  np.array([0, 0.6, 0.8]), 0.5, 0.3),
+              Ellipsoid(np.zeros(3), np.array([0.6, 0.3, 0.2]), np.linalg.qr(rng.standard_normal((3, 3)))[0])]
+    o = np.broadcast_to(np.array([0.2, -3.0, 0.5]), (4000, 3))
+    d = rng.normal(0, 0.3, (4000, 3)) + np.array([0, 1.0, -0.15])
+    for s in shapes:
+        t, n = s.intersect(o, d)
+        assert np.isfinite(t).sum() > 50
+        assert may_hit(s, o, d)[np.isfinite(t)].all()
+        hit = np.isfinite(t)
+        np.testing.assert_allclose(np.linalg.norm(n[hit], axis=1), 1, atol=1e-9)
+
+
+def test_photo_textures_come_from_the_installed_wheel_or_fall_back(monkeypatch):
+    source, textures = photos.texture_set()
+    assert len(textures) >= 5 and all(lv[0].dtype == np.uint8 for lv in textures)
+    if photos.skimage_data_dir() is not None:
+        assert source == "scikit-image sample photographs"
+    monkeypatch.setattr(photos, "skimage_data_dir", lambda: None)
+    photos.texture_set.cache_clear()
+    try:
+        source, textures = photos.texture_set()
+        assert source == "procedural images" and len(textures) == 16
+    finally:
+        photos.texture_set.cache_clear()
+
+
+def test_texture_sampling_is_bilinear_and_mirrored():
+    tex = np.arange(16, dtype=np.uint8).reshape(4, 4, 1).repeat(3, 2) * 10
+    levels = [tex]
+    uv = np.array([[0.5, 0.5], [1.0, 0.5], [4.5, 0.5], [-0.5, 0.5]])  # texel centre, halfway, mirrored edges
+    rgb = photos.sample_texture(levels, uv, np.ones(4))[:, 0] * 255
+    np.testing.assert_allclose(rgb, [0, 5, 30, 0], atol=1e-9)
