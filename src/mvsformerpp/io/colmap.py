@@ -50,7 +50,8 @@ def find_colmap_model(project: str | Path) -> tuple[Path, Path | None]:
     folder itself, preferring one with an ``images/`` folder beside it: in a folder holding both a
     distorted sparse model without photos and an undistorted ``dense/{images,sparse}`` workspace (what
     structure from motion writes), ``dense/`` is the pair that belongs together. Photos are taken from
-    ``images/`` beside the model, else the project's ``images/``, ``dense/images``; ``image_dir`` is None
+    ``images/`` beside the model, else the project's ``images/``, ``dense/images``, else ``images/`` beside
+    the folder given (when it is the model itself); ``image_dir`` is None
     when no image folder is found.
     """
     project = Path(project)
@@ -68,6 +69,7 @@ def find_colmap_model(project: str | Path) -> tuple[Path, Path | None]:
 
     model_dir = next((m for m in found if beside(m)), found[0])
     candidates = beside(model_dir) + [project / s for s in IMAGE_SUBDIRS]
+    candidates += [model_dir.parent / "images", model_dir.parent.parent / "images"]  # a model folder given itself
     image_dir = next((c for c in candidates if c.is_dir()), None)
     return model_dir, image_dir
 

@@ -276,9 +276,9 @@ def image_scale_factor(K: np.ndarray, width: int, height: int, where: Path) -> f
     if off_centre(best) <= 0.1:
         return best
     raise InputError(
-        f"the camera's principal point ({cx:g}, {cy:g}) is far from the centre of the {width}x{height} image, "
-        "and no integer rescaling fits: the photo and the camera file do not belong together (use the photo "
-        "at the resolution the camera was calibrated for)",
+        f"the camera's principal point ({cx:g}, {cy:g}) does not fit the {width}x{height} image (it lies more "
+        "than 10% off the centre), nor any integer rescaling of it: the photo and the camera file do not belong "
+        "together (use the photo at the resolution the camera was calibrated for)",
         where,
     )
 
