@@ -160,3 +160,17 @@ def test_kill_9_during_reconstruct_then_rerun_matches_an_uninterrupted_run(mvs, 
     for name in a:
         if name not in skip:
             assert a[name] == b[name], name
+
+
+def test_ranks_of_one_job_share_the_lock_of_rank_0(tmp_path, monkeypatch):
+    out = tmp_path / "o"
+    monkeypatch.setenv("WORLD_SIZE", "2")
+    monkeypatch.setenv("RANK", "0")
+    with output_guard.claim_output_folder(out):
+        monkeypatch.setenv("RANK", "1")
+        with output_guard.claim_output_folder(out):  # rank 1 of the same job gets in
+            pass
+        monkeypatch.setenv("RANK", "0")
+        with pytest.raises(output_guard.FolderBusyError):  # another job's rank 0 does not
+            with output_guard.claim_output_folder(out):
+                pass

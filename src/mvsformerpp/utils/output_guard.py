@@ -7,7 +7,8 @@
 * an existing, non-empty folder must carry the marker file this package writes (``.mvsformerpp``),
   so another scene's folder or any folder of the user's is refused instead of mixed into;
 * an advisory lock (``fcntl.flock`` on ``.mvsformerpp.lock``) admits one run at a time; the second
-  one stops and names the process (pid, host, start time) that holds the folder;
+  one stops and names the process (pid, host, start time) that holds the folder (in a job of several
+  processes started by torchrun, rank 0 holds it for the job: ``RANK``/``WORLD_SIZE``);
 * temporary files that a killed run left behind (``.NAME.XXXXXXXX.tmp``, see :mod:`.atomic`) are
   removed once the lock is held, and a folder that the failed run created and left empty is removed.
 """
@@ -147,22 +148,31 @@ def claim_output_folder(out: str | Path, inputs: Sequence[str | Path] = (), kind
     if not os.access(out, os.W_OK | os.X_OK):
         raise InputError("the output folder is not writable (permission denied or a read-only file system); "
                          "choose another -o", out)
+    rank, world = int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
+    # One job of several processes (torchrun): rank 0 holds the lock for all of them, and nobody removes
+    # temporaries, which may be another rank's file in flight.
+    held = contextlib.ExitStack()
     try:
-        with folder_lock(out):
-            try:
-                marker = out / MARKER
-                if _written_by(out) != f"mvsformerpp {kind}":
-                    marker.write_text(json.dumps({"written_by": f"mvsformerpp {kind}"}) + "\n")
-                remove_temporaries(out)
-                yield out
-            except BaseException:
-                if created:
-                    _remove_if_unused(out)
-                raise
-    except OSError as e:
-        if e.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
+        if rank == 0:
+            held.enter_context(folder_lock(out))
+            if _written_by(out) != f"mvsformerpp {kind}":
+                (out / MARKER).write_text(json.dumps({"written_by": f"mvsformerpp {kind}"}) + "\n")
+        if world == 1:
+            remove_temporaries(out)
+    except BaseException as e:
+        held.close()
+        if created:
+            _remove_if_unused(out)
+        if isinstance(e, OSError) and e.errno in (errno.EROFS, errno.EACCES, errno.EPERM):
             raise InputError(f"cannot write to the output folder ({e.strerror}); choose another -o", out) from e
         raise
+    with held:
+        try:
+            yield out
+        except BaseException:
+            if created:
+                _remove_if_unused(out)
+            raise
 
 
 def _remove_if_unused(out: Path) -> None:
@@ -177,9 +187,9 @@ def _remove_if_unused(out: Path) -> None:
 def claim_output_file(path: str | Path, magic: bytes, what: str) -> Iterator[Path]:
     """Check that ``path`` is new or a file of this kind (it starts with ``magic``), then hold it for the block.
 
-    Inside a folder an earlier run of this package wrote, the folder's lock is held too (so fusing
-    into a folder that ``reconstruct`` is writing waits for nobody and mixes nothing); the temporaries
-    a killed run left for this file name are removed.
+    Inside a folder an earlier run of this package wrote, the folder's lock is held too (fusing into a
+    folder that ``reconstruct`` is writing stops with the holder's name); the temporaries a killed run
+    left for this file name are removed.
     """
     path = Path(path)
     if path.exists():
