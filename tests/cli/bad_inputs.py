@@ -116,7 +116,11 @@ def _full_disk(monkeypatch, module: str, name: str) -> None:
     def full(*a, **kw):
         raise OSError(errno.ENOSPC, "No space left on device")
 
-    monkeypatch.setattr(importlib.import_module(module), name, full)
+    owner = importlib.import_module(module)
+    *path, name = name.split(".")
+    for attr in path:  # a method: Class.method
+        owner = getattr(owner, attr)
+    monkeypatch.setattr(owner, name, full)
 
 
 # ------------------------------------------------------------------------------------------ cases
@@ -280,7 +284,7 @@ CASES: list[Case] = [
          "meta"),
     Case("fuse-disk-full", "the disk fills up while fuse writes the cloud",
          lambda d: ["fuse", str(fused_folder(d)), "--quiet"], "No space left",
-         patch=lambda mp: _full_disk(mp, "mvsformerpp.pipelines.fuse", "write_ply")),
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.io.ply", "PlyStreamWriter.write")),
     Case("fuse-output-is-photo", "fuse -o pointing at an input photo",
          lambda d: (lambda s: ["fuse", str(s), "-o", str(s / "images" / "00000000.png"), "--quiet"])(fused_folder(d)),
          "not a PLY"),

@@ -15,7 +15,7 @@ import sys
 from mvsformerpp.errors import MVSFormerError
 
 # Subcommand modules, in the order `--help` lists them.
-COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "evaluate", "info", "synth")
+COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "evaluate", "info", "synth", "train")
 
 
 # Operating-system errors the user fixes (space, permissions, read-only media, a path under a file).
