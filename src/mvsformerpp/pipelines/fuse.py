@@ -205,4 +205,3 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     if not quiet:
         print(f"{ply.count:,} points in {seconds:.1f} s -> {out_ply}")
     return {"ply": out_ply, "points": ply.count, "seconds": seconds, "view_cache": store.stats()}
-

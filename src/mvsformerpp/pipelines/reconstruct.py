@@ -96,7 +96,7 @@ class ReconstructConfig:
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""
         d = dataclasses.asdict(self)
-        for k in ("device", "memory_gb", "cache_mb", "fusion", "mask_dir"):
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "mask_dir", "sfm"):  # (SfM shows in the cameras)
             d.pop(k)
         return d
 
