@@ -36,10 +36,12 @@ log = logging.getLogger(__name__)
 class ReconstructConfig:
     """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
 
-    preset: Literal["lite", "paper"] = "paper"
-    """Network preset (``mvsformerpp.build_model``); ``lite`` is a small network for CPU and tests."""
+    preset: Literal["lite", "paper"] = "lite"
+    """Network preset (``mvsformerpp.build_model``): ``lite`` (small, CPU-friendly; the package ships trained
+    weights for it) or ``paper`` (the official MVSFormer++ network: pass its checkpoint)."""
     checkpoint: str | None = None
-    """Weights file matching the preset; None = the preset's default initialisation (random)."""
+    """Weights file matching the preset; None = the weights shipped with the package for ``lite``
+    (:mod:`mvsformerpp.models.shipped`), a random initialisation for presets without shipped weights."""
     device: str = "cpu"
     """torch device string, e.g. ``cpu``, ``cuda``, ``cuda:1``."""
     precision: Literal["fp32", "bf16", "fp16"] = "fp32"
@@ -188,15 +190,19 @@ def _check_images(scene: Scene) -> None:
 
 
 def build_network(config: ReconstructConfig) -> torch.nn.Module:
-    """The preset's network on the configured device, with the checkpoint's weights if one is given."""
+    """The preset's network on the configured device with its weights: the checkpoint if one is given, else
+    the shipped default weights (``lite``), else a seeded random initialisation."""
     import mvsformerpp
+    from mvsformerpp.models import shipped
 
-    torch.manual_seed(config.seed)
-    model = mvsformerpp.build_model(config.preset)
     if config.checkpoint is not None:
         ckpt = Path(config.checkpoint)
         if not ckpt.is_file():
             raise InputError("checkpoint file not found", ckpt)
+        _check_stored_preset(ckpt, config.preset)
+    torch.manual_seed(config.seed)
+    model = mvsformerpp.build_model(config.preset)
+    if config.checkpoint is not None:
         try:
             mvsformerpp.load_checkpoint(model, ckpt)
         except MVSFormerError:
@@ -205,7 +211,53 @@ def build_network(config: ReconstructConfig) -> torch.nn.Module:
             raise FormatError(
                 f"checkpoint does not match the '{config.preset}' preset ({str(e).splitlines()[0][:300]}); "
                 "pass the preset it was trained with (--preset)", ckpt) from e
+    elif config.preset == shipped.SHIPPED_PRESET:
+        shipped.load_shipped(model)
     return model.to(torch.device(config.device)).eval()
+
+
+def _check_stored_preset(ckpt: Path, preset: str) -> None:
+    """A safetensors checkpoint that records its config must be for ``preset``: else say which preset it is for."""
+    if ckpt.suffix != ".safetensors":
+        return
+    from mvsformerpp.models.checkpoint import read_safetensors
+    from mvsformerpp.models.config import get_config, presets_for
+
+    _, stored = read_safetensors(ckpt)
+    if stored is None:
+        return
+    fits = presets_for(stored)
+    if preset in fits:
+        return
+    if fits:
+        raise InputError(f"checkpoint is for the '{fits[0]}' preset (its stored config), not '{preset}': "
+                         f"pass --preset {fits[0]}", ckpt)
+    wanted = get_config(preset).to_dict()
+    diff = sorted(k for k, v in stored.to_dict().items() if wanted.get(k) != v)
+    raise InputError(f"checkpoint's stored config fits no preset (it differs from '{preset}' in "
+                     f"{', '.join(diff[:6])}); load it from Python with mvsformerpp.load_model", ckpt)
+
+
+def describe_weights(config: ReconstructConfig) -> str:
+    """One line saying which weights ``build_network(config)`` uses."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is not None:
+        return f"weights: {config.checkpoint} ('{config.preset}' preset)"
+    if config.preset == shipped.SHIPPED_PRESET:
+        return "weights: " + shipped.describe_shipped()
+    return (f"weights: NONE - the '{config.preset}' preset has no shipped weights, so the network is randomly "
+            "initialised and the depth maps are not meaningful; pass --checkpoint (for the paper preset: the "
+            "official model_best.pth), or use --preset lite for the shipped default weights")
+
+
+def weights_id(config: ReconstructConfig) -> str:
+    """Identity of the weights for the resume check (the shipped file's digest: new weights redo the views)."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is None and config.preset == shipped.SHIPPED_PRESET:
+        return "shipped:" + shipped.shipped_record()["sha256"]
+    return f"checkpoint:{config.checkpoint}" if config.checkpoint else f"random:{config.seed}"
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -235,6 +287,8 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
+    if model is None:
+        resolved["weights"] = weights_id(config)
     state = settings_hash({**config.result_settings(), **resolved})
 
     # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
@@ -289,6 +343,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
         "working_resolution": resolved,
         "preset": config.preset,
         "checkpoint": config.checkpoint,
+        "weights": describe_weights(config) if model is None else "a network given by the caller",
         "timings": {k: round(v, 3) for k, v in timings.items()},
         "feature_cache": cache_stats,
         "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis")},
