@@ -77,6 +77,18 @@ def test_confidence_threshold_drops_pixels(synth):
     assert 0.2 * len(full) < len(half) < 0.6 * len(full)
 
 
+@pytest.mark.parametrize("method", ["normal", "gipuma"])
+def test_low_confidence_source_depths_are_not_used(synth, method):
+    """A confident reference whose sources are all below the threshold has nothing to agree with."""
+    root, scene, depths, images, gt, span = synth
+    confs = [np.full(d.shape, 0.9 if i == 0 else 0.1, np.float32) for i, d in enumerate(depths)]
+    cfg = METHODS[method]
+    confident, _ = fuse_depth_maps(scene, depths, [np.full(d.shape, 0.9, np.float32) for d in depths], images, cfg)
+    assert len(confident) > 0.1 * depths[0].size
+    xyz, _ = fuse_depth_maps(scene, depths, confs, images, cfg)
+    assert len(xyz) == 0
+
+
 def test_fuse_command_on_a_scene_folder(synth, tmp_path):
     root, scene, depths, images, gt, span = synth
     folder = tmp_path / "run"
