@@ -113,15 +113,24 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
 
 def temple_quality(out_dir: str | Path, config: ReconstructConfig | None = None, quiet: bool = True) -> dict:
     """Reconstruct the bundled temple (the demo's settings unless ``config``) and check the cloud."""
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo
+
+    summary = run_demo(out_dir, config or DEMO_CONFIG, quiet=quiet)
+    return {**temple_cloud_metrics(Path(out_dir) / "fused.ply"), "views": summary["views"],
+            "depth_s": summary["timings"]["depth_s"]}
+
+
+def temple_cloud_metrics(ply: str | Path) -> dict:
+    """Points of a temple cloud, the share inside the README's bounding box, and the mean share (over the
+    16 photos) of the points in front of a camera and inside its image that fall on the object."""
     from scipy.ndimage import binary_dilation
 
     from mvsformerpp.io.images import read_image
     from mvsformerpp.io.middlebury import find_par_file, read_bounding_box, read_par
     from mvsformerpp.io.ply import ply_points, read_ply
-    from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
+    from mvsformerpp.pipelines.demo import temple_dir
 
-    summary = run_demo(out_dir, config or DEMO_CONFIG, quiet=quiet)
-    pts = ply_points(read_ply(Path(out_dir) / "fused.ply")).astype(np.float64)
+    pts = ply_points(read_ply(ply)).astype(np.float64)
     box = read_bounding_box(temple_dir())
     inside = np.all((pts >= box[0]) & (pts <= box[1]), axis=1) if len(pts) else np.zeros(0, bool)
     on_object = []
@@ -131,11 +140,10 @@ def temple_quality(out_dir: str | Path, config: ReconstructConfig | None = None,
         cam = pts @ R.T + t
         front = cam[:, 2] > 0
         uv = cam[front] @ K.T
-        u, v = (uv[:, 0] / uv[:, 2]).astype(np.int64), (uv[:, 1] / uv[:, 2]).astype(np.int64)
+        u, v = np.floor(uv[:, 0] / uv[:, 2]).astype(np.int64), np.floor(uv[:, 1] / uv[:, 2]).astype(np.int64)
         h, w = mask.shape
         seen = (u >= 0) & (u < w) & (v >= 0) & (v < h)
         if seen.any():
             on_object.append(float(mask[v[seen], u[seen]].mean()))
     return {"points": int(len(pts)), "inside_box": float(inside.mean()) if len(pts) else 0.0,
-            "on_silhouette": float(np.mean(on_object)) if on_object else 0.0,
-            "views": summary["views"], "depth_s": summary["timings"]["depth_s"]}
+            "on_silhouette": float(np.mean(on_object)) if on_object else 0.0}
