@@ -12,7 +12,7 @@ from pathlib import Path
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
 # The lite network at half the photos' size (320x240; about two minutes on a 2-core CPU), five views per depth map.
-DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion="normal")
+DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion="dynamic")
 
 
 def temple_dir() -> Path:
