@@ -87,9 +87,12 @@ def _fmt_s(seconds: float | None) -> str:
 
 
 def _fusion_threshold(run: RunFolder) -> float | None:
-    name = run.config.get("config", {}).get("fusion")
+    cfg = run.config.get("config", {})
+    name = cfg.get("fusion")
     if not name or name == "none":
         return None
+    if cfg.get("fusion_conf") is not None:  # --fusion-conf overrides the preset's threshold
+        return float(cfg["fusion_conf"])
     from mvsformerpp.fusion import get_config
 
     try:
