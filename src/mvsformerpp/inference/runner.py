@@ -119,14 +119,36 @@ class SceneInference:
         with self._autocast():
             return self.model.encode_images(self.canvas_image(i)[None])
 
+    def view_set(self, ref: int) -> list[int]:
+        """The images reference view ``ref`` needs: itself and its source views."""
+        return [ref] + select_sources(self.scene, ref, self.num_views)
+
+    def schedule(self, todo: list[int]) -> dict:
+        """A cache-friendly order of the reference views ``todo`` (:mod:`.schedule`) and what it predicts.
+
+        The cache capacity in images comes from the size of one image's features: the first view's
+        reference image is encoded here (and cached, so its own view then hits). Returns ``order``,
+        ``capacity_images`` and the simulated ``predicted`` / ``predicted_index_order`` hits and misses.
+        """
+        from mvsformerpp.inference.schedule import cache_friendly_order, simulate_cache
+        from mvsformerpp.utils.lru import tree_nbytes
+
+        if not todo or not self.use_cache:
+            return {"order": list(todo), "capacity_images": 0}
+        capacity = self.cache.max_bytes // max(1, tree_nbytes(self.cache.get(todo[0])))
+        sets = {r: self.view_set(r) for r in todo}
+        order = cache_friendly_order(todo, sets, capacity)
+        return {"order": order, "capacity_images": int(capacity), "predicted": simulate_cache(order, sets, capacity),
+                "predicted_index_order": simulate_cache(sorted(todo), sets, capacity)}
+
     @torch.no_grad()
     def infer(self, ref: int) -> ViewResult:
         """Depth and confidence of reference view ``ref`` at its original resolution."""
         import time
 
         t0 = time.perf_counter()
-        srcs = select_sources(self.scene, ref, self.num_views)
-        ids = [ref] + srcs
+        ids = self.view_set(ref)
+        srcs = ids[1:]
         views = [self.scene.views[i] for i in ids]
         imgs = torch.stack([self.canvas_image(i) for i in ids])[None]  # [1,V,3,Hc,Wc]
         extr = np.stack([v.extrinsic for v in views])

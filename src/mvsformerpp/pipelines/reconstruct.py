@@ -217,94 +217,154 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     """Reconstruct INPUT into ``out_dir``; return the summary (also written to ``summary.json``).
 
     ``model`` replaces the preset's network (already on the device), e.g. for tests or benchmarks.
-    Finished views are skipped on a repeated call with the same settings.
+    Finished views are skipped on a repeated call with the same settings. Under ``torchrun`` the
+    processes share the views out (:mod:`mvsformerpp.inference.ranks`) and rank 0 fuses.
     """
+    from mvsformerpp.inference.ranks import ranks_from_env
+
+    ranks = ranks_from_env(config.device)
+    try:
+        return _reconstruct(input_path, out_dir, config, quiet or not ranks.is_main, model, ranks)
+    finally:
+        ranks.close()
+
+
+def _flag(field: str) -> str:
+    """The command-line flag of a config field (for messages)."""
+    return {"num_views": "--views"}.get(field, "--" + field.replace("_", "-"))
+
+
+def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ranks) -> dict:
     from tqdm import tqdm
+
+    from mvsformerpp.inference.ranks import StoppedByOtherRank
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    folder = OutputFolder(out_dir)
-    full = load_input(input_path, folder.root, quiet=quiet)
-    fingerprint = scene_fingerprint(full)
-    folder.check_scene(fingerprint)
-    scene = prepare_scene(full, config)
+    ranks.agree({"INPUT": str(input_path), "-o": str(out_dir),
+                 **{_flag(k): v for k, v in dataclasses.asdict(config).items()}})
+    folder = ranks.in_turn(lambda: OutputFolder(out_dir, rank=ranks.rank))
+    ranks.check_shared_folder(folder.root)
+    full = ranks.in_turn(lambda: load_input(input_path, folder.root, quiet=quiet))
+
+    def setup():
+        fingerprint = scene_fingerprint(full)
+        folder.check_scene(fingerprint)
+        return fingerprint, prepare_scene(full, config), _device(config.device, ranks)
+
+    fingerprint, scene, device = ranks.step(setup)
+    ranks.agree({"the input scene (cameras and images)": fingerprint})
     timings["input_s"] = time.perf_counter() - t0
 
-    device = _device(config.device)
     sizes = [(v.width, v.height) for v in scene.views]
     budget = config.memory_gb * 2**30 if config.memory_gb else 0.5 * available_memory_bytes(device)
-    long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
+    # Rank 0's choice for all: free memory differs between machines, the working resolution may not.
+    long_side = ranks.broadcast(choose_long_side(sizes, config.num_views, config.max_size, budget))
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
     state = settings_hash({**config.result_settings(), **resolved})
 
-    # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
-    from mvsformerpp.io.mvsnet import write_mvsnet_scene
+    def write_scene() -> list[int]:
+        """Cameras, pairs and image links in the MVSNet layout (fusion reads them from here); the views to do."""
+        from mvsformerpp.io.mvsnet import write_mvsnet_scene
 
-    with disk_full_guard(folder.root):
-        write_mvsnet_scene(scene, folder.root, copy_images=False, num_depth=config.num_depth)
-        for i, v in enumerate(scene.views):
-            folder.link_image(i, v.image_path)
-    folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
-    folder.write_json("config.json", {"config": dataclasses.asdict(config), "resolved": resolved,
-                                      "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
-                                      "source_format": full.source_format, "num_views_in_input": len(full)})
+        with disk_full_guard(folder.root):
+            write_mvsnet_scene(scene, folder.root, copy_images=False, num_depth=config.num_depth)
+            for i, v in enumerate(scene.views):
+                folder.link_image(i, v.image_path)
+        folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
+        folder.write_json("config.json", {"config": dataclasses.asdict(config), "resolved": resolved,
+                                          "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
+                                          "source_format": full.source_format, "num_views_in_input": len(full)})
+        return [i for i in range(len(scene)) if not folder.view_done(i, state)]
 
-    todo = [i for i in range(len(scene)) if not folder.view_done(i, state)]
+    todo = ranks.broadcast(ranks.step(write_scene, only_main=True))
+
     t1 = time.perf_counter()
-    cache_stats = None
+    cache_stats = schedule = None
     if todo:
-        if model is None:
-            model = build_network(config)
-        from mvsformerpp.io.images import read_image
+        def start():
+            net = model if model is not None else build_network(config)
+            from mvsformerpp.io.images import read_image
 
-        runner = SceneInference(model, scene, plans, lambda i: read_image(scene.views[i].image_path),
-                                num_views=config.num_views, num_depth=config.num_depth,
-                                temperatures=config.temperatures, device=device, precision=config.precision,
-                                cache_bytes=config.cache_mb << 20)
-        for i in tqdm(todo, desc="Depth maps", unit="view", disable=quiet):
-            res = runner.infer(i)
-            folder.write_view(i, res.depth, res.confidence, state)
+            runner = SceneInference(net, scene, plans, lambda i: read_image(scene.views[i].image_path),
+                                    num_views=config.num_views, num_depth=config.num_depth,
+                                    temperatures=config.temperatures, device=device, precision=config.precision,
+                                    cache_bytes=config.cache_mb << 20)
+            return runner, runner.schedule(todo)
+
+        runner, schedule = ranks.step(start)
+        mine = ranks.shard(schedule["order"])
+        error = None
+        try:
+            for i in tqdm(mine, desc="Depth maps", unit="view", disable=quiet):
+                stop = ranks.stop_requested(folder.root)
+                if stop is not None:
+                    raise StoppedByOtherRank(stop)
+                res = runner.infer(i)
+                folder.write_view(i, res.depth, res.confidence, state)
+        except Exception as e:  # (exchanged with the other ranks, then raised again)
+            error = e
+        ranks.outcome(error)
         cache_stats = runner.cache.stats()
     timings["depth_s"] = time.perf_counter() - t1
     timings["views_computed"] = len(todo)
+    per_rank = ranks.gather({"views": len(ranks.shard(schedule["order"])) if schedule else 0,
+                             "depth_s": round(timings["depth_s"], 3), "feature_cache": cache_stats})
 
-    t2 = time.perf_counter()
-    ply = folder.root / "fused.ply"
-    points = None
-    if config.fusion != "none":
-        fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
-        if not folder.fusion_done(fusion_state):
-            with disk_full_guard(ply):
-                _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb)
-            folder.mark_fusion(fusion_state)
-        from mvsformerpp.io.ply import ply_vertex_count
+    def finish() -> dict:
+        folder.fold_rank_progress()
+        t2 = time.perf_counter()
+        ply = folder.root / "fused.ply"
+        points = None
+        if config.fusion != "none":
+            fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
+            if not folder.fusion_done(fusion_state):
+                with disk_full_guard(ply):
+                    _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb)
+                folder.mark_fusion(fusion_state)
+            from mvsformerpp.io.ply import ply_vertex_count
 
-        points = ply_vertex_count(ply)
-    timings["fusion_s"] = time.perf_counter() - t2
-    timings["total_s"] = time.perf_counter() - t0
+            points = ply_vertex_count(ply)
+        timings["fusion_s"] = time.perf_counter() - t2
+        timings["total_s"] = time.perf_counter() - t0
+        summary = {
+            "views": len(scene),
+            "points": points,
+            "working_resolution": resolved,
+            "preset": config.preset,
+            "checkpoint": config.checkpoint,
+            "timings": {k: round(v, 3) for k, v in timings.items()},
+            "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
+            "schedule": None if schedule is None else {k: v for k, v in schedule.items() if k != "order"},
+            "ranks": per_rank if ranks.distributed else None,
+            "outputs": {"ply": str(ply) if points is not None else None,
+                        "depth_vis": str(folder.root / "depth_vis")},
+        }
+        folder.write_json("summary.json", summary)
+        return summary
 
-    summary = {
-        "views": len(scene),
-        "points": points,
-        "working_resolution": resolved,
-        "preset": config.preset,
-        "checkpoint": config.checkpoint,
-        "timings": {k: round(v, 3) for k, v in timings.items()},
-        "feature_cache": cache_stats,
-        "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis")},
-    }
-    folder.write_json("summary.json", summary)
-    return summary
+    return ranks.broadcast(ranks.step(finish, only_main=True))
 
 
-def _device(name: str) -> torch.device:
+def _sum_stats(stats: list[dict | None]) -> dict | None:
+    """Feature-cache counters of all ranks added up (None when no rank computed a view)."""
+    stats = [s for s in stats if s is not None]
+    if not stats:
+        return None
+    return {k: sum(s[k] for s in stats) for k in stats[0]}
+
+
+def _device(name: str, ranks=None) -> torch.device:
+    """The torch device of ``--device``; ``cuda`` under torchrun is each rank's GPU ``LOCAL_RANK``."""
     try:
         device = torch.device(name)
     except RuntimeError as e:
         raise InputError(f"--device {name!r} is not a torch device (use cpu, cuda or cuda:N)") from e
     if device.type == "cuda" and not torch.cuda.is_available():
         raise InputError(f"--device {name}: CUDA is not available on this machine; use --device cpu")
+    if device.type == "cuda" and device.index is None and ranks is not None and ranks.distributed:
+        device = torch.device("cuda", ranks.local_rank)
     return device
 
 
