@@ -15,6 +15,7 @@ import pytest
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.inference.ranks import Ranks
+from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.synth.strip import generate_strip_scene
 
 ENTRY = Path(__file__).with_name("torchrun_entry.py")
@@ -94,15 +95,18 @@ def test_a_killed_rank_resumes_with_the_missing_views_only(strip, tmp_path):
     shutil.copytree(strip / "scene", work / "scene")
     dead = torchrun(work, "reconstruct", "scene", "-o", "out", *ARGS, "--fusion", "none", fault="die:1:1")
     assert dead.returncode != 0
-    done = sorted(p.name for p in (work / "out" / "depth_est").iterdir())
-    assert 1 <= len(done) < 6 and not list((work / "out").rglob(".*.tmp"))
+    done = sorted(p.name for p in (work / "out" / "depth_est").glob("*.pfm"))
+    assert 1 <= len(done) < 6
+    for name in done:  # whatever is there under its final name is whole
+        assert read_pfm(work / "out" / "depth_est" / name).shape == (48, 80)
     before = {n: (work / "out" / "depth_est" / n).stat().st_mtime_ns for n in done}
     again = torchrun(work, "reconstruct", "scene", "-o", "out", *ARGS, "--fusion", "none")
     assert again.returncode == 0, again.stderr
     summary = json.loads((work / "out" / "summary.json").read_text())
     assert summary["timings"]["views_computed"] == 6 - len(done)
     assert {n: (work / "out" / "depth_est" / n).stat().st_mtime_ns for n in done} == before
-    assert len(list((work / "out" / "depth_est").iterdir())) == 6
+    assert len(list((work / "out" / "depth_est").glob("*.pfm"))) == 6
+    assert not list((work / "out").rglob(".*.tmp"))  # the killed run's temporaries were removed
 
 
 @pytest.mark.slow

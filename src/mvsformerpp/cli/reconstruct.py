@@ -31,10 +31,16 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help=f"views per depth map: the reference plus N-1 neighbours (default: {_DEFAULT.num_views})")
     g.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="override every view's depth range (scene units)")
+    g.add_argument("--depth-format", choices=("auto", "interval", "max"), default=_DEFAULT.depth_format,
+                   help="how to read a two-number depth line in MVSNet cam files: MIN INTERVAL, MIN MAX, or "
+                        "auto (MAX when the second number is larger; default)")
     g.add_argument("--max-images", type=int, metavar="N",
                    help="use only N overlapping views: the first view and its best neighbours")
     g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "none"), default=_DEFAULT.fusion,
                    help=f"fusion filter (default: {_DEFAULT.fusion}); 'none' writes the depth maps only")
+    g.add_argument("--output-resolution", choices=("original", "working"), default=_DEFAULT.output_resolution,
+                   help="size of the depth/confidence maps: each photo's own (default), or the working "
+                        "resolution with images/ and cams/ scaled to match (smaller, faster to write)")
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
                    help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
     g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
@@ -45,7 +51,8 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         preset=args.preset, checkpoint=args.checkpoint, device=args.device, precision=args.precision,
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
-        fusion=args.fusion, cache_mb=args.cache_mb,
+        depth_format=args.depth_format,
+        fusion=args.fusion, cache_mb=args.cache_mb, output_resolution=args.output_resolution,
     )
 
 

@@ -161,6 +161,24 @@ class OutputFolder:
             atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
         return path
 
+    def write_working_image(self, i: int, src: Path, plan) -> Path:
+        """``images/NNNNNNNN<ext>``: the photo at the working resolution of ``plan`` (a
+        :class:`~mvsformerpp.inference.resolution.ViewResize`), the pixels the network sees; kept
+        when one of that size is already there."""
+        from PIL import Image
+
+        from mvsformerpp.io.images import image_size, read_image
+
+        dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"
+        if dst.is_file() and not dst.is_symlink() and dst.stat().st_nlink == 1 and \
+                image_size(dst) == (plan.resized_width, plan.resized_height):
+            return dst
+        fmt = Image.registered_extensions().get(dst.suffix, "PNG")
+        with disk_full_guard(dst), atomic_open(dst, "wb") as f:
+            Image.fromarray(plan.working_image(read_image(src))).save(f, format=fmt,
+                                                                      **({"quality": 95} if fmt == "JPEG" else {}))
+        return dst
+
     def link_image(self, i: int, src: Path) -> Path:
         """``images/NNNNNNNN<ext>``: a hard link to the input photo, or a copy across file systems."""
         dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"

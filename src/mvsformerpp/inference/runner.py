@@ -62,7 +62,8 @@ class SceneInference:
 
     def __init__(self, model: torch.nn.Module, scene: Scene, plans: list[ViewResize], load_image,
                  num_views: int, num_depth: int = 192, temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0),
-                 device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30):
+                 device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30,
+                 output_resolution: str = "original"):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         self.model = model.eval()
@@ -74,6 +75,9 @@ class SceneInference:
         self.temperatures = list(temperatures)
         self.device = torch.device(device)
         self.precision = precision
+        if output_resolution not in ("original", "working"):
+            raise ValueError(f"output_resolution must be 'original' or 'working', got {output_resolution!r}")
+        self.output_resolution = output_resolution
         # A network without a separate per-image encoder runs without the cache.
         self.use_cache = cache_bytes > 0 and callable(getattr(model, "encode_images", None))
         self.cache = FeatureCache(self._encode, cache_bytes)
@@ -117,7 +121,7 @@ class SceneInference:
 
     @torch.no_grad()
     def infer(self, ref: int) -> ViewResult:
-        """Depth and confidence of reference view ``ref`` at its original resolution."""
+        """Depth and confidence of reference view ``ref`` at its original resolution (or the working one)."""
         import time
 
         t0 = time.perf_counter()
@@ -136,8 +140,12 @@ class SceneInference:
             out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
                              release_features=feats is not None)
         plan = self.plans[ref]
-        depth = plan.canvas_to_original(out["depth"][0].float(), mode="bilinear")
-        conf = plan.canvas_to_original(out["photometric_confidence"][0].float(), mode="bilinear")
+        if self.output_resolution == "working":
+            depth = plan.canvas_to_working(out["depth"][0].float())
+            conf = plan.canvas_to_working(out["photometric_confidence"][0].float())
+        else:
+            depth = plan.canvas_to_original(out["depth"][0].float(), mode="bilinear")
+            conf = plan.canvas_to_original(out["photometric_confidence"][0].float(), mode="bilinear")
         depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).clamp_(min=0.0)
         conf = torch.nan_to_num(conf, nan=0.0).clamp_(0.0, 1.0)
         return ViewResult(depth=depth.cpu().numpy().astype(np.float32),
