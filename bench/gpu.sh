@@ -5,10 +5,11 @@
 # synthetic views per precision. Needs a CUDA build of torch in the environment (e.g.
 # `make install TORCH_SPEC="torch==2.13.0 --index-url https://download.pytorch.org/whl/cu126"`).
 #   bench/gpu.sh                 # writes bench/gpu_results.json
-#   bench/gpu.sh --dry-run       # the same script on the CPU at 128x160 (checks that it works)
+#   bench/gpu.sh --dry-run       # the same script on the CPU at 128x160 (checks that it works; JSON to /tmp)
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PY="${PY:-.venv/bin/python}"
+if [[ " $* " == *" --dry-run "* ]]; then OUT="${OUT:-${TMPDIR:-/tmp}/gpu_dry_run.json}"; fi
 OUT="${OUT:-bench/gpu_results.json}"
 "$PY" -c "import torch; print('torch', torch.__version__, '| CUDA', torch.version.cuda, '|', \
 torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU')"

@@ -78,7 +78,7 @@ class ViewResize:
 
     def canvas_to_original(self, x: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
         """``[Hc, Wc]`` map on the canvas -> ``[H, W]`` at the original size (padding cropped out)."""
-        x = x[: self.resized_height, : self.resized_width]
+        x = self.canvas_to_working(x)
         if (self.resized_width, self.resized_height) == (self.width, self.height):
             return x
         kw = {"align_corners": False} if mode == "bilinear" else {}
