@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import torch
 
 from mvsformerpp.errors import FormatError, InputError, MVSFormerError
@@ -37,10 +38,12 @@ log = logging.getLogger(__name__)
 class ReconstructConfig:
     """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
 
-    preset: Literal["lite", "paper"] = "paper"
-    """Network preset (``mvsformerpp.build_model``); ``lite`` is a small network for CPU and tests."""
+    preset: Literal["lite", "paper"] = "lite"
+    """Network preset (``mvsformerpp.build_model``): ``lite`` (small, CPU-friendly; the package ships trained
+    weights for it) or ``paper`` (the official MVSFormer++ network: pass its checkpoint)."""
     checkpoint: str | None = None
-    """Weights file matching the preset; None = the preset's default initialisation (random)."""
+    """Weights file matching the preset; None = the weights shipped with the package for ``lite``
+    (:mod:`mvsformerpp.models.shipped`), a random initialisation for presets without shipped weights."""
     device: str = "cpu"
     """torch device string, e.g. ``cpu``, ``cuda``, ``cuda:1``."""
     precision: Literal["fp32", "bf16", "fp16"] = "fp32"
@@ -63,6 +66,9 @@ class ReconstructConfig:
     max_images: int | None = None
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
     fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
+    fusion_conf: float | None = None
+    """Override of the fusion preset's confidence threshold (None = the preset's); the shipped default weights'
+    confidences are low (not calibrated), so the demo fuses them at 0.1."""
     """Fusion filter (``mvsformerpp.fusion``); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
     cache_mb: int = 2048
     """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
@@ -85,13 +91,15 @@ class ReconstructConfig:
                              "0 < min < max")
         if self.depth_format not in ("auto", "interval", "max"):
             raise InputError(f"--depth-format must be auto, interval or max, got {self.depth_format!r}")
+        if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
+            raise InputError(f"fusion_conf must be in [0, 1), got {self.fusion_conf}")
         if len(self.temperatures) != 4:
             raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
 
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""
         d = dataclasses.asdict(self)
-        for k in ("device", "memory_gb", "cache_mb", "fusion"):
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf"):
             d.pop(k)
         return d
 
@@ -202,25 +210,35 @@ def range_coverage(lo: float, hi: float, own_min: float, own_max: float) -> floa
 
 
 def warn_if_range_misses_scene(input_path: str | Path, out: Path, config: ReconstructConfig) -> None:
-    """Warn when ``--depth-range`` leaves out most of the depths the input itself gives its views.
+    """Warn when ``--depth-range`` leaves out most of the scene for most views.
 
-    The input's own per-view range (from the sparse points a view sees, or its cam file's depth line)
-    spans where the scene is; a range covering less than half of it for most views is almost always
-    a unit mix-up (millimetres vs metres) and gives empty depth maps.
+    For a COLMAP input: most of the sparse points a view sees lie outside the range; otherwise the
+    range covers less than half of the view's own depth range (its cam file's depth line). Almost
+    always a unit mix-up (millimetres vs metres), which gives empty depth maps.
     """
     try:
         own = load_input(input_path, out, quiet=True, depth_format=config.depth_format)
     except MVSFormerError:
         return  # the input has no usable ranges of its own: nothing to compare with
     lo, hi = config.depth_range
+    if own.source_format == "colmap" and own.root is not None:  # the sparse points each view sees
+        from mvsformerpp.io.colmap import sparse_point_depths
+
+        z = {k: d for k, d in sparse_point_depths(own.root).items() if len(d)}
+        missed = [k for k, d in z.items() if np.mean((d >= lo) & (d <= hi)) < 0.5]
+        if z and len(missed) > len(z) / 2:
+            d = z[missed[0]]
+            log.warning("--depth-range %g %g leaves out most of the sparse points seen by %d of %d views (e.g. %s "
+                        "sees them at %.4g .. %.4g); check the units, or leave --depth-range out",
+                        lo, hi, len(missed), len(z), missed[0], float(d.min()), float(d.max()))
+        return
     ranged = [v for v in own.views if v.depth_min is not None and v.depth_max is not None]
     missed = [v for v in ranged if range_coverage(lo, hi, v.depth_min, v.depth_max) < 0.5]
     if ranged and len(missed) > len(ranged) / 2:
         v = missed[0]
-        log.warning("--depth-range %g %g covers less than half of the depths the input gives %d of %d views "
-                    "(e.g. %s: %.4g .. %.4g from its %s); check the units, or leave --depth-range out",
-                    lo, hi, len(missed), len(ranged), v.name, v.depth_min, v.depth_max,
-                    "sparse points" if own.source_format == "colmap" else "depth line")
+        log.warning("--depth-range %g %g covers less than half of the depth range the input gives %d of %d views "
+                    "(e.g. %s: %.4g .. %.4g from its depth line); check the units, or leave --depth-range out",
+                    lo, hi, len(missed), len(ranged), v.name, v.depth_min, v.depth_max)
 
 
 def connected_subset(scene: Scene, n: int) -> list[int]:
@@ -259,15 +277,19 @@ def _check_images(scene: Scene) -> None:
 
 
 def build_network(config: ReconstructConfig) -> torch.nn.Module:
-    """The preset's network on the configured device, with the checkpoint's weights if one is given."""
+    """The preset's network on the configured device with its weights: the checkpoint if one is given, else
+    the shipped default weights (``lite``), else a seeded random initialisation."""
     import mvsformerpp
+    from mvsformerpp.models import shipped
 
-    torch.manual_seed(config.seed)
-    model = mvsformerpp.build_model(config.preset)
     if config.checkpoint is not None:
         ckpt = Path(config.checkpoint)
         if not ckpt.is_file():
             raise InputError("checkpoint file not found", ckpt)
+        _check_stored_preset(ckpt, config.preset)
+    torch.manual_seed(config.seed)
+    model = mvsformerpp.build_model(config.preset)
+    if config.checkpoint is not None:
         try:
             mvsformerpp.load_checkpoint(model, ckpt)
         except MVSFormerError:
@@ -276,7 +298,53 @@ def build_network(config: ReconstructConfig) -> torch.nn.Module:
             raise FormatError(
                 f"checkpoint does not match the '{config.preset}' preset ({str(e).splitlines()[0][:300]}); "
                 "pass the preset it was trained with (--preset)", ckpt) from e
+    elif config.preset == shipped.SHIPPED_PRESET:
+        shipped.load_shipped(model)
     return model.to(torch.device(config.device)).eval()
+
+
+def _check_stored_preset(ckpt: Path, preset: str) -> None:
+    """A safetensors checkpoint that records its config must be for ``preset``: else say which preset it is for."""
+    if ckpt.suffix != ".safetensors":
+        return
+    from mvsformerpp.models.checkpoint import read_safetensors
+    from mvsformerpp.models.config import get_config, presets_for
+
+    _, stored = read_safetensors(ckpt)
+    if stored is None:
+        return
+    fits = presets_for(stored)
+    if preset in fits:
+        return
+    if fits:
+        raise InputError(f"checkpoint is for the '{fits[0]}' preset (its stored config), not '{preset}': "
+                         f"pass --preset {fits[0]}", ckpt)
+    wanted = get_config(preset).to_dict()
+    diff = sorted(k for k, v in stored.to_dict().items() if wanted.get(k) != v)
+    raise InputError(f"checkpoint's stored config fits no preset (it differs from '{preset}' in "
+                     f"{', '.join(diff[:6])}); load it from Python with mvsformerpp.load_model", ckpt)
+
+
+def describe_weights(config: ReconstructConfig) -> str:
+    """One line saying which weights ``build_network(config)`` uses."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is not None:
+        return f"weights: {config.checkpoint} ('{config.preset}' preset)"
+    if config.preset == shipped.SHIPPED_PRESET:
+        return "weights: " + shipped.describe_shipped()
+    return (f"weights: NONE - the '{config.preset}' preset has no shipped weights, so the network is randomly "
+            "initialised and the depth maps are not meaningful; pass --checkpoint (for the paper preset: the "
+            "official model_best.pth), or use --preset lite for the shipped default weights")
+
+
+def weights_id(config: ReconstructConfig) -> str:
+    """Identity of the weights for the resume check (the shipped file's digest: new weights redo the views)."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is None and config.preset == shipped.SHIPPED_PRESET:
+        return "shipped:" + shipped.shipped_record()["sha256"]
+    return f"checkpoint:{config.checkpoint}" if config.checkpoint else f"random:{config.seed}"
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -324,8 +392,10 @@ def _reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruc
     long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
-    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved},
-                             weights_identity(config.checkpoint) if model is None else None)
+    weights = None
+    if model is None:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
+        weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
+    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved}, weights)
 
     # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
     from mvsformerpp.io.mvsnet import write_mvsnet_scene
@@ -362,10 +432,10 @@ def _reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruc
     ply = folder.root / "fused.ply"
     points = None
     if config.fusion != "none":
-        fusion_state = settings_hash({"depth": keys, "fusion": config.fusion})
+        fusion_state = settings_hash({"depth": keys, "fusion": config.fusion, "conf": config.fusion_conf})
         if not folder.fusion_done(fusion_state):
             with disk_full_guard(ply):
-                _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb)
+                _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, config.fusion_conf)
             folder.mark_fusion(fusion_state)
         from mvsformerpp.io.ply import ply_vertex_count
 
@@ -379,6 +449,7 @@ def _reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruc
         "working_resolution": resolved,
         "preset": config.preset,
         "checkpoint": config.checkpoint,
+        "weights": describe_weights(config) if model is None else "a network given by the caller",
         "timings": {k: round(v, 3) for k, v in timings.items()},
         "feature_cache": cache_stats,
         "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis")},
@@ -393,15 +464,18 @@ def _device(name: str) -> torch.device:
     return parse_device(name)
 
 
-def _fusion_config(name: str):
-    """The named fusion configuration of :mod:`mvsformerpp.fusion` (the name itself if it has no registry)."""
+def _fusion_config(name: str, conf: float | None = None):
+    """The named fusion configuration of :mod:`mvsformerpp.fusion`, with ``conf`` as its confidence threshold."""
     from mvsformerpp import fusion
 
     get = getattr(fusion, "get_config", None)
-    return get(name) if callable(get) else name
+    if not callable(get):
+        return name
+    return get(name) if conf is None else get(name, conf_threshold=conf)
 
 
-def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None) -> None:
+def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None,
+                conf: float | None = None) -> None:
     from mvsformerpp.pipelines.fuse import fuse
 
-    fuse(folder, ply, _fusion_config(name), quiet=quiet, memory_gb=memory_gb)
+    fuse(folder, ply, _fusion_config(name, conf), quiet=quiet, memory_gb=memory_gb)
