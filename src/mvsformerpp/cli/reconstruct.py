@@ -45,6 +45,9 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--mask-dir", metavar="DIR",
                    help="object masks applied before fusion: one per photo, named like it or by view index "
                         "(DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
+    g.add_argument("--output-resolution", choices=("original", "working"), default=_DEFAULT.output_resolution,
+                   help="size of the depth/confidence maps: each photo's own (default), or the working "
+                        "resolution with images/ and cams/ scaled to match (smaller, faster to write)")
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
                    help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
     g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
@@ -65,7 +68,7 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
         depth_format=args.depth_format,
-        fusion=args.fusion, cache_mb=args.cache_mb, mask_dir=args.mask_dir,
+        fusion=args.fusion, cache_mb=args.cache_mb, output_resolution=args.output_resolution, mask_dir=args.mask_dir,
         sfm=SfMConfig(camera_model=args.camera_model, single_camera=args.single_camera, matcher=args.matcher,
                       max_image_size=args.sfm_max_size),
     )
