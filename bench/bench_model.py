@@ -77,7 +77,7 @@ def child(size: str, device: str, precision: str, views: int, count_flops: bool,
 
     H, W = (int(x) for x in size.split("x"))
     torch.manual_seed(0)
-    model = build_model("paper").eval().to(device)
+    model = build_model("paper").to(device).prepare_for_inference()
     imgs = torch.randn(1, views, 3, H, W, device=device)
     proj = {}
     for s, f in enumerate((8, 4, 2, 1)):
