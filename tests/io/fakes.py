@@ -9,7 +9,7 @@ from mvsformerpp.io.mvsnet import MVSNetCam, read_cam, write_pair
 
 REPO = Path(__file__).resolve().parents[2]
 DTU_PAIR = REPO / "tests" / "data" / "dtu_pair"
-TEMPLE = REPO / "src" / "mvsformerpp" / "data" / "templeSparseRing"
+TEMPLE = REPO / "src" / "mvsformerpp" / "assets" / "templeSparseRing"
 
 
 def make_dtu_mvsnet(root, pair=True):

@@ -47,3 +47,35 @@ def test_bad_files_raise_clear_errors(tmp_path):
     write_ply(p, np.zeros((0, 3)))
     with pytest.raises(FormatError, match="coordinate"):
         ply_points({"x": np.zeros(1)})
+
+
+def test_streamed_pieces_read_back_as_one_cloud(tmp_path):
+    from mvsformerpp.io.ply import PlyStreamWriter, ply_vertex_count
+
+    rng = np.random.default_rng(1)
+    pieces = [(rng.normal(size=(n, 3)).astype(np.float32), rng.integers(0, 256, (n, 3)).astype(np.uint8))
+              for n in (5, 0, 17)]
+    path = tmp_path / "s.ply"
+    with PlyStreamWriter(path) as w:
+        for xyz, rgb in pieces:
+            w.write(xyz, rgb)
+    v = read_ply(path)
+    np.testing.assert_array_equal(ply_points(v), np.concatenate([p[0] for p in pieces]).astype(np.float64))
+    np.testing.assert_array_equal(ply_colors(v), np.concatenate([p[1] for p in pieces]))
+    assert ply_vertex_count(path) == 22 and w.count == 22
+    # Same body as the one-shot writer.
+    write_ply(tmp_path / "o.ply", *(np.concatenate(a) for a in zip(*pieces)))
+    assert (tmp_path / "o.ply").read_bytes().split(b"end_header\n")[1] == path.read_bytes().split(b"end_header\n")[1]
+    with PlyStreamWriter(tmp_path / "e.ply"):
+        pass
+    assert len(ply_points(read_ply(tmp_path / "e.ply"))) == 0
+
+
+def test_a_failed_stream_leaves_no_file(tmp_path):
+    from mvsformerpp.io.ply import PlyStreamWriter
+
+    path = tmp_path / "f.ply"
+    with pytest.raises(ValueError, match="fields"), PlyStreamWriter(path) as w:
+        w.write(np.zeros((2, 3)), np.zeros((2, 3), np.uint8))
+        w.write(np.zeros((2, 3)))  # a piece without colours
+    assert list(tmp_path.iterdir()) == []

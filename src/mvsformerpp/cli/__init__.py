@@ -13,7 +13,7 @@ import sys
 from mvsformerpp.errors import MVSFormerError
 
 # Subcommand modules, in the order `--help` lists them.
-COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "evaluate", "info", "synth")
+COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "evaluate", "info", "synth", "train")
 
 
 def build_parser() -> argparse.ArgumentParser:

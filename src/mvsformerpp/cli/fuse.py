@@ -23,6 +23,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--num-consistent", type=int, help="consistent source views needed")
     p.add_argument("--num-src-views", type=int, help="source views checked per reference view")
     p.add_argument("--device", default="cpu", help="cpu or cuda")
+    p.add_argument("--memory-gb", type=float, metavar="GB",
+                   help="memory budget: depth maps are read on demand and cached within it, points are "
+                        "written as they are produced (default: half of the free memory)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -33,5 +36,5 @@ def run(args: argparse.Namespace) -> int:
 
     config = get_config(args.preset, conf_threshold=args.conf, disp_threshold=args.disp,
                         num_consistent=args.num_consistent, num_src_views=args.num_src_views)
-    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet)
+    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet, memory_gb=args.memory_gb)
     return 0

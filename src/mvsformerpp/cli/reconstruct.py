@@ -26,7 +26,7 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help=f"cap on the longer side of the working resolution (default: {_DEFAULT.max_size}; "
                         "images are never upscaled and the aspect ratio is kept)")
     g.add_argument("--memory-gb", type=float, metavar="GB",
-                   help="memory budget of one forward pass (default: half of the free memory)")
+                   help="memory budget of one forward pass and of fusion (default: half of the free memory)")
     g.add_argument("--views", type=int, default=_DEFAULT.num_views, metavar="N",
                    help=f"views per depth map: the reference plus N-1 neighbours (default: {_DEFAULT.num_views})")
     g.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),

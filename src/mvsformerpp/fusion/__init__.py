@@ -6,37 +6,43 @@ import numpy as np
 import torch
 
 from mvsformerpp.fusion.config import PRESETS, FusionConfig, get_config
-from mvsformerpp.fusion.core import FusionView, fuse_views
-from mvsformerpp.io.scene import Scene
+from mvsformerpp.fusion.core import FusionView, fuse_views, iter_fused_points
+from mvsformerpp.io.scene import Scene, View
 
-__all__ = ["FusionConfig", "FusionView", "PRESETS", "fuse_depth_maps", "fuse_views", "get_config", "make_views"]
+__all__ = ["FusionConfig", "FusionView", "PRESETS", "fuse_depth_maps", "fuse_views", "get_config",
+           "iter_fused_points", "make_view", "make_views"]
+
+
+def make_view(view: View, depth: np.ndarray, confidence: np.ndarray | None, image: np.ndarray,
+              device: str | torch.device = "cpu") -> FusionView:
+    """A scene view's camera + its depth/confidence/image arrays -> :class:`FusionView` at depth resolution.
+
+    K is scaled when the depth map is smaller or larger than the image (continuous-coordinate rule
+    K' = diag(sx, sy, 1) K); the image is resized to the depth resolution for colours.
+    """
+    from PIL import Image
+
+    depth = np.asarray(depth, dtype=np.float32)
+    h, w = depth.shape
+    sx, sy = w / view.width, h / view.height
+    K = np.diag([sx, sy, 1.0]) @ view.K
+    img = np.asarray(image)
+    if img.shape[:2] != (h, w):
+        img = np.asarray(Image.fromarray(img).resize((w, h), Image.BILINEAR))
+    conf = np.ones_like(depth) if confidence is None else np.asarray(confidence, dtype=np.float32)
+    depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
+
+    def t(a, dt=torch.float32):  # (arrays read from images can be read-only: torch needs writable)
+        return torch.as_tensor(a if a.flags.writeable else a.copy(), dtype=dt, device=device)
+
+    return FusionView(t(depth), t(conf), t(K), t(view.extrinsic), t(img[..., :3], torch.uint8))
 
 
 def make_views(scene: Scene, depths: list[np.ndarray], confidences: list[np.ndarray] | None,
                images: list[np.ndarray], device: str | torch.device = "cpu") -> list[FusionView]:
-    """Scene cameras + per-view depth/confidence/image arrays -> :class:`FusionView` at depth resolution.
-
-    K is scaled when a depth map is smaller or larger than its image (continuous-coordinate rule
-    K' = diag(sx, sy, 1) K); images are resized to the depth resolution for colours.
-    """
-    from PIL import Image
-
-    views = []
-    for i, view in enumerate(scene.views):
-        depth = np.asarray(depths[i], dtype=np.float32)
-        h, w = depth.shape
-        sx, sy = w / view.width, h / view.height
-        K = np.diag([sx, sy, 1.0]) @ view.K
-        img = np.asarray(images[i])
-        if img.shape[:2] != (h, w):
-            img = np.asarray(Image.fromarray(img).resize((w, h), Image.BILINEAR))
-        conf = np.ones_like(depth) if confidences is None else np.asarray(confidences[i], dtype=np.float32)
-        depth = np.where(np.isfinite(depth) & (depth > 0), depth, 0).astype(np.float32)
-        def t(a, dt=torch.float32):  # (arrays read from images can be read-only: torch needs writable)
-            return torch.as_tensor(a if a.flags.writeable else a.copy(), dtype=dt, device=device)
-
-        views.append(FusionView(t(depth), t(conf), t(K), t(view.extrinsic), t(img[..., :3], torch.uint8)))
-    return views
+    """:func:`make_view` for every view of the scene."""
+    return [make_view(view, depths[i], None if confidences is None else confidences[i], images[i], device)
+            for i, view in enumerate(scene.views)]
 
 
 def fuse_depth_maps(scene: Scene, depths, confidences, images, config: FusionConfig | None = None,

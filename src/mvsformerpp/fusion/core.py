@@ -9,7 +9,7 @@ caller's device, reference pixels in chunks to bound memory.
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -137,12 +137,48 @@ def _fuse_gipuma_ref(views, r, candidates, cfg: FusionConfig, idx, used):
     return (sum_x / n)[keep], (sum_rgb / n)[keep]
 
 
-def fuse_views(views: list[FusionView], neighbors: list[list[int]], cfg: FusionConfig,
-               progress: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Fuse all views; returns world points [N,3] float32 and colours [N,3] uint8."""
-    all_xyz, all_rgb = [], []
-    used = [torch.zeros_like(vw.depth, dtype=torch.bool) for vw in views] if cfg.method == "gipuma" else None
-    for r, ref in enumerate(views):
+class ConsumedPixels:
+    """gipuma's marks of source pixels already merged into a point, for the views not yet fused.
+
+    ``marks[j]`` is view j's ``[H, W]`` bool mask while a reference is being fused; between reference
+    views the masks are kept bit-packed (1 bit per pixel) and a view's mask is dropped once the view
+    itself has been a reference (nothing reads it afterwards).
+    """
+
+    def __init__(self, views):
+        self.views = views
+        self._packed: dict[int, np.ndarray] = {}
+        self._open: dict[int, torch.Tensor] = {}
+        self._done: set[int] = set()
+
+    def __getitem__(self, j: int) -> torch.Tensor:
+        if j not in self._open:
+            depth = self.views[j].depth
+            if j in self._packed:
+                bits = np.unpackbits(self._packed.pop(j), count=depth.numel()).astype(bool)
+                self._open[j] = torch.from_numpy(bits).reshape(depth.shape).to(depth.device)
+            else:
+                self._open[j] = torch.zeros_like(depth, dtype=torch.bool)
+        return self._open[j]
+
+    def finish(self, r: int) -> None:
+        """Reference view r is fused: pack the marks made meanwhile, forget view r's."""
+        self._done.add(r)
+        for j, mask in self._open.items():
+            if j not in self._done:
+                self._packed[j] = np.packbits(mask.reshape(-1).cpu().numpy())
+        self._open.clear()
+        self._packed.pop(r, None)
+
+
+def iter_fused_points(views: Sequence[FusionView], neighbors: list[list[int]], cfg: FusionConfig,
+                      progress: Callable | None = None) -> Iterator[tuple[np.ndarray, np.ndarray]]:
+    """Fuse reference views 0, 1, ... in turn, yielding world points [n,3] float32 and colours [n,3] uint8
+    piece by piece. ``views`` is any sequence: a list in memory, or a store that loads views on demand
+    (:class:`mvsformerpp.fusion.store.ViewStore`); the points are the same either way."""
+    used = ConsumedPixels(views) if cfg.method == "gipuma" else None
+    for r in range(len(views)):
+        ref = views[r]
         srcs = [j for j in neighbors[r] if j != r][: cfg.num_src_views]
         H, W = ref.depth.shape
         good = (ref.depth > 0) & (ref.confidence > cfg.conf_threshold) & torch.isfinite(ref.depth)
@@ -161,10 +197,17 @@ def fuse_views(views: list[FusionView], neighbors: list[list[int]], cfg: FusionC
                 u, v = _pixel_centres(H, W, kept)
                 xyz = backproject(ref.K, ref.E, u, v, depth)
                 rgb = ref.image.reshape(-1, 3)[kept].float()
-            all_xyz.append(xyz.float().cpu())
-            all_rgb.append(rgb.round().clamp(0, 255).to(torch.uint8).cpu())
+            yield xyz.float().cpu().numpy(), rgb.round().clamp(0, 255).to(torch.uint8).cpu().numpy()
+        if used is not None:
+            used.finish(r)
         if progress is not None:
             progress(r)
-    if not all_xyz:
+
+
+def fuse_views(views: Sequence[FusionView], neighbors: list[list[int]], cfg: FusionConfig,
+               progress: Callable | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """Fuse all views; returns world points [N,3] float32 and colours [N,3] uint8."""
+    pieces = list(iter_fused_points(views, neighbors, cfg, progress))
+    if not pieces:
         return np.zeros((0, 3), np.float32), np.zeros((0, 3), np.uint8)
-    return torch.cat(all_xyz).numpy(), torch.cat(all_rgb).numpy()
+    return np.concatenate([p[0] for p in pieces]), np.concatenate([p[1] for p in pieces])

@@ -13,24 +13,14 @@ batch axis so that the cached single-image features of a view set can be handed 
 from __future__ import annotations
 
 import dataclasses
-from collections import OrderedDict
 from collections.abc import Callable
 from typing import Any
 
 import torch
 
+from mvsformerpp.utils.lru import BytesLRU, tree_nbytes
 
-def tree_nbytes(x: Any) -> int:
-    """Total bytes of all tensors in a (nested) feature structure."""
-    if isinstance(x, torch.Tensor):
-        return x.numel() * x.element_size()
-    if dataclasses.is_dataclass(x) and not isinstance(x, type):
-        return sum(tree_nbytes(getattr(x, f.name)) for f in dataclasses.fields(x))
-    if isinstance(x, dict):
-        return sum(tree_nbytes(v) for v in x.values())
-    if isinstance(x, (list, tuple)):
-        return sum(tree_nbytes(v) for v in x)
-    return 0
+__all__ = ["FeatureCache", "tree_cat", "tree_nbytes"]
 
 
 def tree_cat(items: list[Any]) -> Any:
@@ -56,45 +46,15 @@ def tree_cat(items: list[Any]) -> Any:
     return first
 
 
-class FeatureCache:
-    """LRU cache ``image index -> features`` bounded by total tensor bytes.
+class FeatureCache(BytesLRU):
+    """LRU cache ``image index -> features`` bounded by total tensor bytes (:class:`BytesLRU`).
 
     ``encode(index)`` computes the features of one image on a miss. An entry larger than the whole
     budget is returned but not kept, so ``max_bytes=0`` turns caching off (recompute every time).
     """
 
     def __init__(self, encode: Callable[[int], Any], max_bytes: int):
-        self.encode = encode
-        self.max_bytes = int(max_bytes)
-        self._entries: OrderedDict[int, tuple[Any, int]] = OrderedDict()
-        self.bytes = 0
-        self.hits = 0
-        self.misses = 0
-        self.evictions = 0
-
-    def __contains__(self, index: int) -> bool:
-        return index in self._entries
-
-    def __len__(self) -> int:
-        return len(self._entries)
-
-    def get(self, index: int) -> Any:
-        """Features of image ``index``, encoding it on a miss."""
-        if index in self._entries:
-            self._entries.move_to_end(index)
-            self.hits += 1
-            return self._entries[index][0]
-        self.misses += 1
-        feats = self.encode(index)
-        size = tree_nbytes(feats)
-        if size <= self.max_bytes:
-            while self._entries and self.bytes + size > self.max_bytes:
-                _, (_, old) = self._entries.popitem(last=False)
-                self.bytes -= old
-                self.evictions += 1
-            self._entries[index] = (feats, size)
-            self.bytes += size
-        return feats
+        super().__init__(encode, max_bytes)
 
     def get_many(self, indices: list[int]) -> Any:
         """Features of several images, concatenated along the image axis in the given order.
@@ -103,7 +63,3 @@ class FeatureCache:
         budget still works (the excess is recomputed next time).
         """
         return tree_cat([self.get(i) for i in indices])
-
-    def stats(self) -> dict[str, int]:
-        return {"hits": self.hits, "misses": self.misses, "evictions": self.evictions,
-                "entries": len(self._entries), "bytes": self.bytes, "max_bytes": self.max_bytes}

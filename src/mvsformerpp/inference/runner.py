@@ -24,12 +24,8 @@ from mvsformerpp.inference.feature_cache import FeatureCache
 from mvsformerpp.inference.resolution import ViewResize
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models import inference
+from mvsformerpp.models.inputs import normalize, stage_projections
 
-# ImageNet statistics: every official loader normalises RGB in [0, 1] with these (spec section 0).
-IMAGENET_MEAN = (0.485, 0.456, 0.406)
-IMAGENET_STD = (0.229, 0.224, 0.225)
-# Stage resolutions relative to the input: 1/8, 1/4, 1/2, 1 (spec sections 0 and 4).
-STAGE_SCALES = {"stage1": 0.125, "stage2": 0.25, "stage3": 0.5, "stage4": 1.0}
 PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
 
 
@@ -51,28 +47,6 @@ def select_sources(scene: Scene, ref: int, num_views: int) -> list[int]:
     need = num_views - 1
     srcs = nbrs[:need]
     return srcs + [srcs[0]] * (need - len(srcs))
-
-
-def normalize(img: torch.Tensor) -> torch.Tensor:
-    """RGB in [0, 1], ``[..., 3, H, W]`` -> ImageNet-normalised."""
-    mean = img.new_tensor(IMAGENET_MEAN).view(3, 1, 1)
-    std = img.new_tensor(IMAGENET_STD).view(3, 1, 1)
-    return (img - mean) / std
-
-
-def stage_projections(extrinsics: np.ndarray, intrinsics: np.ndarray) -> dict[str, torch.Tensor]:
-    """``[V,4,4]`` world-to-camera and ``[V,3,3]`` canvas K -> ``{stageN: [1,V,2,4,4]}`` float32."""
-    V = len(extrinsics)
-    out = {}
-    for name, s in STAGE_SCALES.items():
-        P = np.zeros((V, 2, 4, 4), dtype=np.float64)
-        P[:, 0] = extrinsics
-        K = intrinsics.copy()
-        K[:, :2, :] *= s
-        P[:, 1, :3, :3] = K
-        P[:, 1, 3, 3] = 1.0
-        out[name] = torch.from_numpy(P).float()[None]
-    return out
 
 
 class SceneInference:

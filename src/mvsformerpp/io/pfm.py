@@ -13,6 +13,24 @@ import numpy as np
 from mvsformerpp.errors import FormatError
 from mvsformerpp.utils.atomic import atomic_open
 
+# Header: three whitespace-separated tokens (type, "W H", scale), each line ended by one newline.
+_HEADER = re.compile(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+([-+0-9.eE]+)\s")
+
+
+def pfm_shape(path: str | Path) -> tuple[int, ...]:
+    """The array shape a PFM file holds, ``(H, W)`` or ``(H, W, 3)``, from its header alone."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(256)
+    except OSError as e:
+        raise FormatError(f"cannot read PFM file ({e.strerror})", path) from e
+    m = _HEADER.match(head)
+    if m is None:
+        raise FormatError("not a PFM file (expected a 'Pf' or 'PF' header, width, height and scale)", path)
+    width, height = int(m.group(2)), int(m.group(3))
+    return (height, width, 3) if m.group(1) == b"PF" else (height, width)
+
 
 def read_pfm(path: str | Path) -> np.ndarray:
     """Read a PFM file as float32 [H, W] (``Pf``) or [H, W, 3] (``PF``), top row first."""
@@ -21,8 +39,7 @@ def read_pfm(path: str | Path) -> np.ndarray:
         data = path.read_bytes()
     except OSError as e:
         raise FormatError(f"cannot read PFM file ({e.strerror})", path) from e
-    # Header: three whitespace-separated tokens (type, "W H", scale), each line ended by one newline.
-    m = re.match(rb"(P[Ff])\s+(\d+)\s+(\d+)\s+([-+0-9.eE]+)\s", data)
+    m = _HEADER.match(data)
     if m is None:
         raise FormatError("not a PFM file (expected a 'Pf' or 'PF' header, width, height and scale)", path)
     channels = 3 if m.group(1) == b"PF" else 1

@@ -24,18 +24,13 @@ _NUMPY_TO_PLY = {"i1": "char", "u1": "uchar", "i2": "short", "u2": "ushort", "i4
                  "u4": "uint", "f4": "float", "f8": "double"}
 
 
-def write_ply(
-    path: str | Path,
+def vertex_records(
     xyz: np.ndarray,
     rgb: np.ndarray | None = None,
     normals: np.ndarray | None = None,
     extra: dict[str, np.ndarray] | None = None,
-) -> None:
-    """Write a binary little-endian PLY point cloud atomically.
-
-    xyz: [N,3] (stored as float32); rgb: [N,3] uint8 or floats in [0,1]; normals: [N,3];
-    extra: name -> [N] scalar arrays (e.g. ``confidence``), stored with their own dtype.
-    """
+) -> np.ndarray:
+    """Points as a structured little-endian array in PLY vertex order (see :func:`write_ply`)."""
     xyz = np.asarray(xyz)
     if xyz.ndim != 2 or xyz.shape[1] != 3:
         raise ValueError(f"xyz must be [N,3], got {xyz.shape}")
@@ -58,17 +53,106 @@ def write_ply(
         if values.shape != (n,):
             raise ValueError(f"extra field {name!r} must be [N], got {values.shape}")
         fields.append((name, values.dtype.newbyteorder("<"), values))
-    record = np.dtype([(name, dt) for name, dt, _ in fields])
-    data = np.empty(n, dtype=record)
+    data = np.empty(n, dtype=np.dtype([(name, dt) for name, dt, _ in fields]))
     for name, _, values in fields:
         data[name] = values
-    header = ["ply", "format binary_little_endian 1.0", "comment written by mvsformerpp", f"element vertex {n}"]
-    for name, dt, _ in fields:
-        header.append(f"property {_NUMPY_TO_PLY[dt.str[1:]]} {name}")
-    header.append("end_header")
+    return data
+
+
+def _header(record: np.dtype, count: str) -> bytes:
+    lines = ["ply", "format binary_little_endian 1.0", "comment written by mvsformerpp", f"element vertex {count}"]
+    lines += [f"property {_NUMPY_TO_PLY[record[name].str[1:]]} {name}" for name in record.names]
+    lines.append("end_header")
+    return ("\n".join(lines) + "\n").encode("ascii")
+
+
+def write_ply(
+    path: str | Path,
+    xyz: np.ndarray,
+    rgb: np.ndarray | None = None,
+    normals: np.ndarray | None = None,
+    extra: dict[str, np.ndarray] | None = None,
+) -> None:
+    """Write a binary little-endian PLY point cloud atomically.
+
+    xyz: [N,3] (stored as float32); rgb: [N,3] uint8 or floats in [0,1]; normals: [N,3];
+    extra: name -> [N] scalar arrays (e.g. ``confidence``), stored with their own dtype.
+    """
+    data = vertex_records(xyz, rgb, normals, extra)
     with atomic_open(path, "wb") as f:
-        f.write(("\n".join(header) + "\n").encode("ascii"))
+        f.write(_header(data.dtype, str(len(data))))
         f.write(data.tobytes())
+
+
+# Width of the vertex count in a streamed header: room for any count, patched in place at the end.
+_COUNT_WIDTH = 20
+
+
+class PlyStreamWriter:
+    """A binary PLY written piece by piece, so the points never need to be in memory together.
+
+    Use as a context manager: ``with PlyStreamWriter(path) as w: w.write(xyz, rgb)``. Every piece
+    must have the same fields. The header announces the vertex count right-aligned in a fixed-width
+    field (PLY readers split header lines on whitespace), patched in place when the writer closes;
+    the file is written under a temporary name and renamed only on success
+    (:mod:`mvsformerpp.utils.atomic`), so an error leaves no partial cloud behind.
+    """
+
+    def __init__(self, path: str | Path):
+        self.path = Path(path)
+        self.count = 0
+        self._record: np.dtype | None = None
+        self._ctx = None
+        self._file = None
+        self._count_offset = 0
+
+    def __enter__(self) -> PlyStreamWriter:
+        self._ctx = atomic_open(self.path, "wb")
+        self._file = self._ctx.__enter__()
+        return self
+
+    def _start(self, record: np.dtype) -> None:
+        self._record = record
+        header = _header(record, " " * _COUNT_WIDTH)
+        self._count_offset = header.index(b"element vertex ") + len(b"element vertex ")
+        self._file.write(header)
+
+    def write(self, xyz: np.ndarray, rgb: np.ndarray | None = None, normals: np.ndarray | None = None,
+              extra: dict[str, np.ndarray] | None = None) -> None:
+        """Append points (the arguments of :func:`write_ply`)."""
+        data = vertex_records(xyz, rgb, normals, extra)
+        if self._record is None:
+            self._start(data.dtype)
+        elif data.dtype != self._record:
+            raise ValueError(f"PLY piece has fields {data.dtype.names}, the file {self._record.names}")
+        self._file.write(data.tobytes())
+        self.count += len(data)
+
+    def __exit__(self, exc_type, exc, tb):
+        if exc_type is None:
+            if self._record is None:  # nothing written: an empty cloud of xyz + rgb
+                self._start(vertex_records(np.zeros((0, 3)), np.zeros((0, 3), np.uint8)).dtype)
+            self._file.seek(self._count_offset)
+            self._file.write(f"{self.count:>{_COUNT_WIDTH}d}".encode("ascii"))
+            self._file.seek(0, 2)
+        return self._ctx.__exit__(exc_type, exc, tb)
+
+
+def ply_vertex_count(path: str | Path) -> int:
+    """The vertex count a PLY header announces (reads the header only)."""
+    path = Path(path)
+    try:
+        with open(path, "rb") as f:
+            head = f.read(4096)
+    except OSError as e:
+        raise FormatError(f"cannot read PLY file ({e.strerror})", path) from e
+    for line in head.split(b"\n"):
+        parts = line.split()
+        if parts[:2] == [b"element", b"vertex"] and len(parts) == 3:
+            return int(parts[2])
+        if parts[:1] == [b"end_header"]:
+            break
+    raise FormatError("PLY header has no 'element vertex N' line", path)
 
 
 def read_ply(path: str | Path) -> dict[str, np.ndarray]:

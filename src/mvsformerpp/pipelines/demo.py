@@ -1,6 +1,6 @@
 """``demo``: reconstruct the bundled Middlebury temple (16 views, 640x480) end to end.
 
-The data (``mvsformerpp/data/templeSparseRing``; README.txt there holds the attribution: Seitz,
+The data (``mvsformerpp/assets/templeSparseRing``; README.txt there holds the attribution: Seitz,
 Diebel, Scharstein, Curless, Szeliski, the Middlebury multi-view stereo benchmark) ships with the
 package. The Middlebury reader takes each view's depth range from the bounding box in that README.
 """
@@ -17,7 +17,7 @@ DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion
 
 def temple_dir() -> Path:
     """Folder of the bundled temple images, ``templeSR_par.txt`` and README.txt."""
-    return Path(__file__).resolve().parent.parent / "data" / "templeSparseRing"
+    return Path(__file__).resolve().parent.parent / "assets" / "templeSparseRing"
 
 
 def run_demo(out_dir: str | Path, config: ReconstructConfig = DEMO_CONFIG, quiet: bool = False) -> dict:

@@ -4,6 +4,11 @@ Reads the layout that ``reconstruct`` writes and that MVSNet-family test scripts
 ``images/``, ``cams/NNNNNNNN_cam.txt``, ``pair.txt``, ``depth_est/NNNNNNNN.pfm`` and
 ``confidence/NNNNNNNN.pfm`` (or ``.png`` holding confidence x 255). Depth maps may be smaller than
 the images (the cameras are then scaled to them).
+
+Fusion streams: each view's maps are read when a reference view first needs them and kept in a
+cache bounded by the memory budget (:mod:`mvsformerpp.fusion.store`), and points go to the PLY as
+they are produced, so memory does not grow with the number of views. The points are the ones the
+in-memory :func:`mvsformerpp.fusion.fuse_depth_maps` gives, in the same order.
 """
 
 from __future__ import annotations
@@ -13,74 +18,144 @@ import warnings
 from pathlib import Path
 
 import numpy as np
+import torch
 from tqdm import tqdm
 
 from mvsformerpp.errors import FormatError, InputError
-from mvsformerpp.fusion import FusionConfig, fuse_depth_maps
+from mvsformerpp.fusion import FusionConfig, iter_fused_points
+from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
 from mvsformerpp.io.images import read_image
 from mvsformerpp.io.mvsnet import load_mvsnet_scene
-from mvsformerpp.io.pfm import read_pfm
-from mvsformerpp.io.ply import write_ply
+from mvsformerpp.io.pfm import pfm_shape, read_pfm
+from mvsformerpp.io.ply import PlyStreamWriter
+from mvsformerpp.io.scene import Scene
 
 
-def _read_confidence(folder: Path, stem: str, shape) -> np.ndarray | None:
-    pfm, png = folder / "confidence" / f"{stem}.pfm", folder / "confidence" / f"{stem}.png"
-    if pfm.is_file():
-        conf = read_pfm(pfm)
-    elif png.is_file():
-        conf = read_image(png)[..., 0].astype(np.float32) / 255.0
-    else:
-        return None
+def _confidence_path(folder: Path, stem: str) -> Path | None:
+    for ext in (".pfm", ".png"):
+        path = folder / "confidence" / f"{stem}{ext}"
+        if path.is_file():
+            return path
+    return None
+
+
+def _read_confidence(path: Path, shape) -> np.ndarray:
+    conf = read_pfm(path) if path.suffix == ".pfm" else read_image(path)[..., 0].astype(np.float32) / 255.0
     if conf.shape != shape:
         raise FormatError(f"confidence map is {conf.shape[1]}x{conf.shape[0]}, its depth map {shape[1]}x{shape[0]}",
-                          pfm if pfm.is_file() else png)
+                          path)
     return conf
 
 
-def load_depth_folder(folder: str | Path):
-    """(scene, depths, confidences or None, images) from a scene folder with ``depth_est/``."""
-    folder = Path(folder)
-    scene = load_mvsnet_scene(folder)
-    depths, confs, images = [], [], []
-    missing = []
-    for view in scene.views:
-        path = folder / "depth_est" / f"{view.name}.pfm"
-        if not path.is_file():
-            missing.append(path.name)
-            continue
+class DepthFolder:
+    """The depth maps of a scene folder, checked up front and read one view at a time."""
+
+    def __init__(self, folder: str | Path):
+        self.root = Path(folder)
+        self.scene: Scene = load_mvsnet_scene(self.root)
+        missing = [p.name for p in map(self.depth_path, range(len(self.scene))) if not p.is_file()]
+        if missing:
+            raise InputError(
+                f"{len(missing)} of {len(self.scene)} views have no depth map in depth_est/ (e.g. {missing[0]}); "
+                "run reconstruct first or remove those views' cams", self.root)
+        self.confidence_paths = [_confidence_path(self.root, v.name) for v in self.scene.views]
+        has_conf = [p is not None for p in self.confidence_paths]
+        if any(has_conf) and not all(has_conf):
+            raise InputError("some views have a confidence map and others not (confidence/)", self.root)
+        self.has_confidence = all(has_conf)
+
+    def depth_path(self, i: int) -> Path:
+        return self.root / "depth_est" / f"{self.scene.views[i].name}.pfm"
+
+    def depth_shape(self, i: int) -> tuple[int, int]:
+        shape = pfm_shape(self.depth_path(i))
+        if len(shape) != 2:
+            raise FormatError("depth map must have one channel (Pf)", self.depth_path(i))
+        return shape
+
+    def read(self, i: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
+        """View i's (depth, confidence or None, image)."""
+        path = self.depth_path(i)
         depth = read_pfm(path)
         if depth.ndim != 2:
             raise FormatError("depth map must have one channel (Pf)", path)
-        depths.append(depth)
-        confs.append(_read_confidence(folder, view.name, depth.shape))
-        images.append(read_image(view.image_path))
-    if missing:
+        conf = _read_confidence(self.confidence_paths[i], depth.shape) if self.has_confidence else None
+        return depth, conf, read_image(self.scene.views[i].image_path)
+
+
+def load_depth_folder(folder: str | Path):
+    """(scene, depths, confidences or None, images) of a scene folder with ``depth_est/``, all in memory."""
+    f = DepthFolder(folder)
+    maps = [f.read(i) for i in range(len(f.scene))]
+    return f.scene, [m[0] for m in maps], ([m[1] for m in maps] if f.has_confidence else None), [m[2] for m in maps]
+
+
+def working_memory_bytes(pixels_per_view: int, num_sources: int, config: FusionConfig) -> int:
+    """Working memory of one chunk of reference pixels checked against its sources."""
+    S = max(1, num_sources)
+    return CHUNK_BYTES_PER_PIXEL * S * min(pixels_per_view, max(1, config.chunk_pixels // S))
+
+
+def minimum_memory_bytes(pixels_per_view: int, num_sources: int, config: FusionConfig) -> int:
+    """The smallest budget fusion runs in: one chunk's working memory and one reference with its sources."""
+    return working_memory_bytes(pixels_per_view, num_sources, config) + working_set_bytes(pixels_per_view,
+                                                                                        max(1, num_sources))
+
+
+def view_cache_bytes(pixels_per_view: int, num_sources: int, config: FusionConfig, memory_bytes: float) -> int:
+    """The part of a memory budget left to cache loaded views once a chunk's working memory is set aside.
+
+    Raises InputError when that cannot hold one reference view and its ``num_sources`` source views.
+    (The chunk size stays the configured one: it does not change the points, but it changes how the
+    floating-point work is batched, and streaming gives the in-memory fusion's points bit for bit.)
+    """
+    need = minimum_memory_bytes(pixels_per_view, num_sources, config)
+    if memory_bytes < need:
         raise InputError(
-            f"{len(missing)} of {len(scene)} views have no depth map in depth_est/ (e.g. {missing[0]}); "
-            "run reconstruct first or remove those views' cams", folder)
-    has_conf = [c is not None for c in confs]
-    if any(has_conf) and not all(has_conf):
-        raise InputError("some views have a confidence map and others not (confidence/)", folder)
-    return scene, depths, (confs if all(has_conf) else None), images
+            f"--memory-gb {memory_bytes / 2**30:.3g} is too small for fusion: one reference view and its "
+            f"{num_sources} source views need {need / 2**30:.3f} GB; raise --memory-gb or lower --num-src-views")
+    return int(memory_bytes - working_memory_bytes(pixels_per_view, num_sources, config))
 
 
 def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
-         device: str = "cpu", quiet: bool = False) -> Path:
-    """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path."""
+         device: str = "cpu", quiet: bool = False, memory_gb: float | None = None) -> Path:
+    """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path.
+
+    ``memory_gb`` bounds the loaded views and working memory (default: half of the free memory).
+    """
+    return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb)["ply"]
+
+
+def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
+                   device: str = "cpu", quiet: bool = False, memory_gb: float | None = None) -> dict:
+    """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
+    from mvsformerpp.inference.resolution import available_memory_bytes
+
     folder = Path(folder)
     out_ply = Path(out_ply) if out_ply is not None else folder / "fused.ply"
     config = config or FusionConfig()
-    scene, depths, confs, images = load_depth_folder(folder)
+    if memory_gb is not None and memory_gb <= 0:
+        raise InputError(f"--memory-gb must be positive, got {memory_gb}")
+    depths = DepthFolder(folder)
+    scene = depths.scene
+    budget = memory_gb * 2**30 if memory_gb else 0.5 * available_memory_bytes(torch.device(device))
+    pixels = max(h * w for h, w in map(depths.depth_shape, range(len(scene))))
+    neighbors = [v.neighbors for v in scene.views]
+    sources = max(len([j for j in nb if j != i][: config.num_src_views]) for i, nb in enumerate(neighbors))
+    cache_bytes = view_cache_bytes(pixels, sources, config, budget)
+    store = scene_view_store(scene, depths.read, cache_bytes, device)
     t0 = time.perf_counter()
-    with tqdm(total=len(scene), desc=f"Fusion ({config.method})", unit="view", disable=quiet) as bar:
-        xyz, rgb = fuse_depth_maps(scene, depths, confs, images, config, device, progress=lambda r: bar.update(1))
-    if len(xyz) == 0:
+    with (tqdm(total=len(scene), desc=f"Fusion ({config.method})", unit="view", disable=quiet) as bar,
+          PlyStreamWriter(out_ply) as ply, torch.no_grad()):
+        for xyz, rgb in iter_fused_points(store, neighbors, config, progress=lambda r: bar.update(1)):
+            ply.write(xyz, rgb)
+    if ply.count == 0:
         warnings.warn(
             "fusion kept no point: the depth maps disagree everywhere or all confidences are below "
             f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
             "--num-consistent 1 or --fusion dynamic); "
-            "writing an empty point cloud", stacklevel=2)
-    write_ply(out_ply, xyz, rgb)
+            "wrote an empty point cloud", stacklevel=2)
+    seconds = time.perf_counter() - t0
     if not quiet:
-        print(f"{len(xyz):,} points in {time.perf_counter() - t0:.1f} s -> {out_ply}")
-    return out_ply
+        print(f"{ply.count:,} points in {seconds:.1f} s -> {out_ply}")
+    return {"ply": out_ply, "points": ply.count, "seconds": seconds, "view_cache": store.stats()}

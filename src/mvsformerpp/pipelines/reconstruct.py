@@ -47,7 +47,8 @@ class ReconstructConfig:
     max_size: int | None = 1536
     """Cap on the longer image side at the working resolution (never upscaled); None = no cap."""
     memory_gb: float | None = None
-    """Memory budget of one forward; None = half of the device's free memory."""
+    """Memory budget of one forward and of fusion (which streams the depth maps through a cache of this
+    size); None = half of the device's free memory."""
     num_views: int = 5
     """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
     num_depth: int = 192
@@ -275,11 +276,11 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
         fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
         if not folder.fusion_done(fusion_state):
             with disk_full_guard(ply):
-                _run_fusion(folder.root, ply, config.fusion, quiet)
+                _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb)
             folder.mark_fusion(fusion_state)
-        from mvsformerpp.io.ply import ply_points, read_ply
+        from mvsformerpp.io.ply import ply_vertex_count
 
-        points = int(len(ply_points(read_ply(ply))))
+        points = ply_vertex_count(ply)
     timings["fusion_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
 
@@ -315,10 +316,7 @@ def _fusion_config(name: str):
     return get(name) if callable(get) else name
 
 
-def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool) -> None:
-    import inspect
-
+def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None) -> None:
     from mvsformerpp.pipelines.fuse import fuse
 
-    kwargs = {"quiet": quiet} if "quiet" in inspect.signature(fuse).parameters else {}
-    fuse(folder, ply, _fusion_config(name), **kwargs)
+    fuse(folder, ply, _fusion_config(name), quiet=quiet, memory_gb=memory_gb)

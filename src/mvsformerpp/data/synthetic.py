@@ -1,0 +1,103 @@
+"""Synthetic training scenes rendered on the fly with exact ground truth.
+
+Sample ``i`` is reference view ``i % views_per_scene`` of scene ``i // views_per_scene``; the scene
+comes from ``source(seed=scene_seed + scene, num_views=views_per_scene, height, width, **options)``,
+so a run is reproducible and no files are needed. Only the views a sample uses are rendered.
+
+Plugging in another generator: ``source`` is any callable with that signature that returns a
+:class:`mvsformerpp.synth.render.SynthScene` (surfaces, cameras, size), which
+:func:`mvsformerpp.synth.render_view` renders. In a training config name it by import path,
+``synthetic_source: "package.module:function"`` (default ``mvsformerpp.synth:random_scene``), with
+keyword options in ``synthetic_options`` (for example a generator's style switches).
+"""
+
+from __future__ import annotations
+
+import importlib
+from collections.abc import Callable
+
+import numpy as np
+
+from mvsformerpp.data.base import MVSDataset, ViewData, ViewSet
+from mvsformerpp.errors import InputError
+
+DEFAULT_SOURCE = "mvsformerpp.synth:random_scene"
+
+
+def resolve_source(spec: str | Callable) -> Callable:
+    """A scene source from a callable or a ``"module:function"`` import path."""
+    if callable(spec):
+        return spec
+    module, _, name = str(spec).partition(":")
+    try:
+        fn = getattr(importlib.import_module(module), name)
+    except (ImportError, AttributeError, ValueError) as e:
+        raise InputError(f"synthetic scene source {spec!r} not found ({e}); give it as 'package.module:function'") \
+            from e
+    if not callable(fn):
+        raise InputError(f"synthetic scene source {spec!r} is not callable")
+    return fn
+
+
+def neighbour_order(centers: np.ndarray, ref: int) -> list[int]:
+    """Other cameras by distance to ``ref`` (nearest first), as the synthetic writer's pair.txt."""
+    dist = np.linalg.norm(centers - centers[ref], axis=1)
+    return [int(j) for j in np.argsort(dist, kind="stable") if j != ref]
+
+
+class SyntheticDataset(MVSDataset):
+    """Scenes from a generator (module docstring), ``num_scenes`` x ``views_per_scene`` samples.
+
+    Source views: ``num_views - 1`` drawn at random from the ``num_candidates`` nearest cameras of the
+    reference (the reference draws 4 of the 10 pair.txt neighbours); the depth range is the reference
+    view's ground-truth range widened by 5 % on each side, as the synthetic writer's cam files.
+    Renders at the batch's size times ``render_scale`` (above 1 leaves room for the random crop).
+    """
+
+    def __init__(self, num_scenes: int, num_views: int = 5, views_per_scene: int = 7, scene_seed: int = 0,
+                 source: str | Callable = DEFAULT_SOURCE, options: dict | None = None, num_candidates: int = 10,
+                 render_scale: float = 1.0, **kwargs):
+        super().__init__(**kwargs)
+        if views_per_scene < num_views:
+            raise InputError(f"views_per_scene ({views_per_scene}) must be at least num_views ({num_views})")
+        self.num_scenes = int(num_scenes)
+        self.num_views = int(num_views)
+        self.views_per_scene = int(views_per_scene)
+        self.scene_seed = int(scene_seed)
+        self.source = resolve_source(source)
+        self.options = dict(options or {})
+        self.num_candidates = int(num_candidates)
+        self.render_scale = float(render_scale)
+
+    def __len__(self) -> int:
+        return self.num_scenes * self.views_per_scene
+
+    def describe(self, index: int) -> str:
+        scene, ref = divmod(index, self.views_per_scene)
+        return f"synthetic scene seed {self.scene_seed + scene}, view {ref}"
+
+    def load_views(self, index: int, rng: np.random.Generator, height: int, width: int) -> ViewSet:
+        from mvsformerpp.synth import render_view
+
+        scene_idx, ref = divmod(index, self.views_per_scene)
+        h, w = round(height * self.render_scale), round(width * self.render_scale)
+        scene = self.source(seed=self.scene_seed + scene_idx, num_views=self.views_per_scene, height=h, width=w,
+                            **self.options)
+        centers = np.stack([c.center for c in scene.cameras])
+        cands = neighbour_order(centers, ref)[: self.num_candidates]
+        srcs = [cands[j] for j in rng.permutation(len(cands))[: self.num_views - 1]]
+        views = []
+        for k, i in enumerate([ref] + srcs):
+            cam = scene.cameras[i]
+            image, depth, _ = render_view(scene, cam)
+            E = np.eye(4)
+            E[:3, :3], E[:3, 3] = cam.R, cam.t
+            if k == 0:
+                valid = depth > 0
+                if not valid.any():
+                    raise InputError(f"{self.describe(index)}: the reference view sees nothing")
+                dmin, dmax = float(depth[valid].min()) * 0.95, float(depth[valid].max()) * 1.05
+                views.append(ViewData(image, np.asarray(cam.K, dtype=np.float64), E, depth, valid))
+            else:
+                views.append(ViewData(image, np.asarray(cam.K, dtype=np.float64), E))
+        return ViewSet(views, dmin, dmax)

@@ -1,0 +1,47 @@
+"""``train``: a run folder from a training config (new or resumed).
+
+``RUN_DIR/config.yaml`` (the resolved config), ``metrics.jsonl``, ``tb/``, ``checkpoints/last.*`` and
+``checkpoints/best.safetensors``. A folder holds one run: starting again in a folder that has a
+checkpoint needs ``resume=True``, and resuming checks that the config is the same one (except for the
+fields in ``RESUMABLE_CHANGES``, which do not touch the trajectory).
+"""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import yaml
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.training.config import TrainConfig, config_differences, dump_config
+from mvsformerpp.utils.atomic import atomic_write_text
+
+
+def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
+    """Check the folder against ``resume`` and write ``config.yaml`` (main process only)."""
+    cfg_path = run_dir / "config.yaml"
+    last = run_dir / "checkpoints" / "last.safetensors"
+    if resume:
+        if not last.is_file() or not cfg_path.is_file():
+            raise InputError("nothing to resume: no checkpoints/last.safetensors and config.yaml here "
+                             "(start without --resume)", run_dir)
+        old = TrainConfig.from_dict(yaml.safe_load(cfg_path.read_text()) or {})
+        diffs = config_differences(old, config)
+        if diffs:
+            raise InputError("cannot resume with another config; these fields differ: " + "; ".join(diffs)
+                             + " (resume with the same options, or train into a new folder)", run_dir)
+    elif last.is_file():
+        raise InputError("this folder already holds a training run; continue it with --resume or choose "
+                         "another folder", run_dir)
+    if int(os.environ.get("RANK", "0")) == 0:
+        atomic_write_text(cfg_path, dump_config(config))
+
+
+def run_training(config: TrainConfig, run_dir: str | Path, resume: bool = False, datasets=None) -> dict:
+    """Train ``config`` into ``run_dir``; see :func:`mvsformerpp.training.train`."""
+    from mvsformerpp.training.trainer import train
+
+    run_dir = Path(run_dir)
+    prepare_run_dir(config, run_dir, resume)
+    return train(config, run_dir, resume=resume, datasets=datasets)

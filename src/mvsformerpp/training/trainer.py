@@ -1,0 +1,306 @@
+"""The training loop: AdamW, warm-up + cosine, per-stage cross-entropy, micro-batches, DDP, resume.
+
+One optimiser step per global batch (``batch_size`` samples over all processes). Each process splits
+its share into micro-batches of ``micro_batch`` (gradient accumulation, each micro-batch's loss
+weighted by its share of the batch), so one process with micro-batches of n samples takes the same
+step as several processes with n samples each. A non-finite loss skips the step (counted; the run
+stops after ``max_bad_steps``). Everything that decides the trajectory (weights, optimiser,
+scheduler, scaler, sampler position, random generators) is in the checkpoint, so ``resume`` continues
+bit for bit on the same machine.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import random
+import time
+import warnings
+from pathlib import Path
+
+import numpy as np
+import torch
+from torch.utils.data import DataLoader
+
+from mvsformerpp.data.base import MVSDataset, SampleKey
+from mvsformerpp.data.samplers import MultiScaleBatchSampler
+from mvsformerpp.errors import MVSFormerError
+from mvsformerpp.evaluation.depth import DepthSums, depth_sums
+from mvsformerpp.models.config import get_config
+from mvsformerpp.models.loss import cascade_loss
+from mvsformerpp.models.mvsformer import MVSFormerPP
+from mvsformerpp.training import distributed as D
+from mvsformerpp.training.checkpoints import (
+    load_training_checkpoint,
+    rng_state,
+    save_training_checkpoint,
+    set_rng_state,
+)
+from mvsformerpp.training.config import TrainConfig
+from mvsformerpp.training.logging import MetricsLog
+from mvsformerpp.training.schedule import build_scheduler
+
+PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+
+
+class TrainingError(MVSFormerError):
+    """The run cannot go on (too many non-finite losses, ...)."""
+
+
+def init_fmt_xavier(model: MVSFormerPP) -> None:
+    """The official FMT initialisation: xavier-uniform for every FMT weight with more than one dimension."""
+    for p in model.FMT_module.FMT.parameters():
+        if p.dim() > 1:
+            torch.nn.init.xavier_uniform_(p)
+
+
+def build_training_model(config: TrainConfig) -> MVSFormerPP:
+    """The preset's network, FMT xavier-initialised (from scratch) or loaded from ``init_checkpoint``."""
+    from mvsformerpp.models.checkpoint import load_checkpoint
+
+    torch.manual_seed(config.seed)
+    model = MVSFormerPP(get_config(config.preset))
+    if config.xavier_init:
+        init_fmt_xavier(model)
+    if config.init_checkpoint:
+        load_checkpoint(model, config.init_checkpoint)
+    return model
+
+
+def build_optimizer(model: torch.nn.Module, config: TrainConfig):
+    """AdamW over the trainable parameters (a frozen DINOv2 is left out) and its scheduler."""
+    params = [p for p in model.parameters() if p.requires_grad]
+    opt = torch.optim.AdamW(params, lr=config.lr, betas=tuple(config.betas), weight_decay=config.weight_decay)
+    return opt
+
+
+def micro_batch_for(config: TrainConfig, height: int, per_rank: int) -> int:
+    """Samples per forward pass for a batch of this height (``micro_batch_by_height``, ``micro_batch``)."""
+    for max_h, m in config.micro_batch_by_height:
+        if height <= max_h:
+            return max(1, min(m, per_rank))
+    return max(1, min(config.micro_batch or per_rank, per_rank))
+
+
+def _slice(batch, a: int, b: int):
+    if isinstance(batch, dict):
+        return {k: _slice(v, a, b) for k, v in batch.items()}
+    return batch[a:b]
+
+
+def _to(batch, device):
+    if isinstance(batch, dict):
+        return {k: _to(v, device) for k, v in batch.items()}
+    return batch.to(device, non_blocking=True)
+
+
+def _autocast(device: torch.device, precision: str):
+    dtype = PRECISIONS[precision]
+    return contextlib.nullcontext() if dtype is None else torch.autocast(device.type, dtype=dtype)
+
+
+def collate(items: list[dict]) -> dict:
+    return torch.utils.data.default_collate(items)
+
+
+@torch.no_grad()
+def validate(model: MVSFormerPP, dataset: MVSDataset, config: TrainConfig, device: torch.device,
+             loss_weights) -> dict:
+    """Loss and depth metrics (stage-4 depth vs ground truth; thresholds in depth intervals) on the
+    first ``val_samples`` samples, one at a time, in eval mode."""
+    was_training = model.training
+    model.eval()
+    h, w = config.val_height or config.height, config.val_width or config.width
+    n = len(dataset) if config.val_samples <= 0 else min(config.val_samples, len(dataset))
+    sums, losses = DepthSums(), []
+    for i in range(n):
+        batch = _to(collate([dataset[SampleKey(i, h, w, 0)]]), device)
+        with _autocast(device, config.precision):
+            out = model(batch["imgs"], batch["proj_matrices"], batch["depth_values"])
+        loss, _ = cascade_loss(out, batch["depth_gt"], batch["mask"], loss_weights)
+        losses.append(float(loss))
+        dv = batch["depth_values"][0]
+        interval = float(dv[-1] - dv[0]) / max(len(dv) - 1, 1)
+        sums.add(depth_sums(out["depth"][0].float().cpu().numpy(), batch["depth_gt"]["stage4"][0].cpu().numpy(),
+                            batch["mask"]["stage4"][0].cpu().numpy() > 0.5, thresholds=(1.0, 3.0), interval=interval))
+    model.train(was_training)
+    return {"val_loss": float(np.mean(losses)) if losses else float("nan"), **sums.metrics()}
+
+
+class _Bar:
+    def __init__(self, total: int, initial: int, enabled: bool):
+        self.bar = None
+        if enabled:
+            from tqdm import tqdm
+
+            self.bar = tqdm(total=total, initial=initial, unit="step", dynamic_ncols=True)
+
+    def update(self, **postfix):
+        if self.bar is not None:
+            self.bar.set_postfix(postfix, refresh=False)
+            self.bar.update(1)
+
+    def close(self):
+        if self.bar is not None:
+            self.bar.close()
+
+
+def train(config: TrainConfig, run_dir: str | Path, resume: bool = False,
+          datasets: tuple[MVSDataset, MVSDataset] | None = None) -> dict:
+    """Train into ``run_dir`` (config, metrics, checkpoints written there); returns a summary dict.
+
+    ``datasets`` replaces the config's (train, validation) datasets (tests, custom data).
+    """
+    from mvsformerpp.training.datasets import build_datasets
+
+    run_dir = Path(run_dir)
+    info = D.init_distributed(config.device)
+    try:
+        return _train(config, run_dir, resume, datasets or build_datasets(config), info)
+    finally:
+        D.shutdown(info)
+
+
+def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.DistInfo) -> dict:
+    train_ds, val_ds = datasets
+    ckpt_dir = run_dir / "checkpoints"
+    device = info.device
+    random.seed(config.seed)
+    model = build_training_model(config).to(device)
+    loss_weights = tuple(config.loss_weights or model.config.loss_weights)
+    opt = build_optimizer(model, config)
+    per_epoch = MultiScaleBatchSampler.batches_per_epoch(len(train_ds), config.batch_size)
+    if per_epoch == 0:
+        raise TrainingError(f"the training set has {len(train_ds)} samples, fewer than one batch of "
+                            f"{config.batch_size}")
+    total = config.max_steps if config.max_steps is not None else config.epochs * per_epoch
+    sched = build_scheduler(opt, config.warmup_steps, total, config.min_lr_ratio)
+    scaler = torch.amp.GradScaler(device.type, enabled=config.precision == "fp16")
+    step, bad_steps, best = 0, 0, math.inf
+    if resume:
+        state = load_training_checkpoint(ckpt_dir, "last", model)
+        opt.load_state_dict(state["optimizer"])
+        sched.load_state_dict(state["scheduler"])
+        scaler.load_state_dict(state["scaler"])
+        set_rng_state(state["rng"])
+        step, bad_steps, best = int(state["step"]), int(state["bad_steps"]), float(state["best"])
+    ddp_model = D.wrap_model(model, info)
+    log = MetricsLog(run_dir, config.tensorboard, resume_step=step if resume else None) if info.is_main else None
+    per_rank = config.batch_size // info.world_size
+    bar = _Bar(total, step, config.progress and info.is_main)
+    ddp_model.train()
+    # the running means of the next metrics row (kept in the checkpoint, so resumed rows are the same)
+    t_log, n_log, sums, n_steps = time.perf_counter(), 0, None, 0
+    if resume and state.get("log_window"):
+        sums, n_steps = state["log_window"]["sums"], int(state["log_window"]["steps"])
+    last_val = None
+
+    def save(name: str = "last") -> None:
+        if info.is_main:
+            save_training_checkpoint(ckpt_dir, name, model, {
+                "step": step, "epoch": step // per_epoch, "batch_in_epoch": step % per_epoch,
+                "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "scaler": scaler.state_dict(),
+                "rng": rng_state(), "bad_steps": bad_steps, "best": best,
+                "log_window": {"sums": sums, "steps": n_steps}})
+        D.barrier(info)
+
+    def run_validation() -> None:
+        nonlocal best, last_val
+        if info.is_main:
+            metrics = validate(model, val_ds, config, device, loss_weights)
+            last_val = {"step": step, "split": "val", **metrics}
+            log.write(last_val, prefix="val")
+            value = metrics.get(config.best_metric, math.nan)
+            if math.isfinite(value) and value < best:
+                best = value
+                save_training_checkpoint(ckpt_dir, "best", model, None)
+        D.barrier(info)
+
+    try:
+        if step == 0 and total > 0:
+            run_validation()  # the starting point of the validation curve
+        while step < total:
+            epoch, start = divmod(step, per_epoch)
+            sampler = MultiScaleBatchSampler(len(train_ds), config.batch_size, config.resolutions or
+                                             [(config.height, config.width)], seed=config.seed, epoch=epoch,
+                                             rank=info.rank, world_size=info.world_size, start=start)
+            loader = DataLoader(train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=config.num_workers,
+                                persistent_workers=False)
+            for batch in loader:
+                micro = micro_batch_for(config, batch["imgs"].shape[-2], per_rank)
+                loss_vec, bad = _train_step(ddp_model, opt, scaler, batch, micro, per_rank, loss_weights, config,
+                                            device, info)
+                lr = opt.param_groups[0]["lr"]
+                with warnings.catch_warnings():  # a skipped step still advances the schedule
+                    warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step()`")
+                    sched.step()
+                step += 1
+                n_log += per_rank * info.world_size
+                if bad:
+                    bad_steps += 1
+                    if bad_steps > config.max_bad_steps:
+                        raise TrainingError(f"{bad_steps} steps had a non-finite loss (the last at step {step}); "
+                                            "the run stops. Lower the learning rate, use fp32/bf16, or check the "
+                                            "data; continue from the last checkpoint with --resume")
+                else:
+                    sums = loss_vec if sums is None else sums + loss_vec
+                    n_steps += 1
+                if info.is_main and sums is not None and (step % config.log_every == 0 or step == total):
+                    avg = (sums / n_steps).tolist()
+                    sps = n_log / max(time.perf_counter() - t_log, 1e-9)
+                    log.write({"step": step, "epoch": step / per_epoch, "loss": avg[0], "lr": lr,
+                               **{f"stage{i + 1}": v for i, v in enumerate(avg[1:])},
+                               "samples_per_s": sps, "bad_steps": bad_steps})
+                    bar.update(loss=f"{avg[0]:.3f}", lr=f"{lr:.2e}", sps=f"{sps:.2f}")
+                    t_log, n_log, sums, n_steps = time.perf_counter(), 0, None, 0
+                else:
+                    bar.update()
+                end_of_epoch = step % per_epoch == 0
+                if (config.val_every and step % config.val_every == 0) or (not config.val_every and end_of_epoch) \
+                        or step == total:
+                    run_validation()
+                if step % config.save_every == 0 or step == total:
+                    save()
+                if step >= total or end_of_epoch:
+                    break
+    finally:
+        bar.close()
+        if log is not None:
+            log.close()
+    return {"steps": step, "bad_steps": bad_steps, "best": best, "last_validation": last_val,
+            "checkpoint": str(ckpt_dir / "last.safetensors")}
+
+
+def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weights, config: TrainConfig,
+                device: torch.device, info: D.DistInfo):
+    """One optimiser step over this process's batch; returns ([total, stage1..4] losses, skipped)."""
+    opt.zero_grad(set_to_none=True)
+    n = batch["imgs"].shape[0]
+    chunks = [(a, min(a + micro, n)) for a in range(0, n, micro)]
+    loss_vec = torch.zeros(5, dtype=torch.float64)
+    bad = False
+    for i, (a, b) in enumerate(chunks):
+        chunk = _to(_slice(batch, a, b), device)
+        sync = i == len(chunks) - 1 or not info.enabled
+        with contextlib.nullcontext() if sync else model.no_sync():
+            with _autocast(device, config.precision):
+                out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"])
+            loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
+            share = (b - a) / per_rank
+            finite = bool(torch.isfinite(loss))
+            bad = bad or not finite
+            # a non-finite chunk still runs a backward pass (every process must), with its gradients dropped below
+            scaler.scale((loss if finite else loss.nan_to_num(0.0, 0.0, 0.0) * 0.0) * share).backward()
+        if finite:
+            stages = [float(per_stage[f"stage{s}"].detach()) if f"stage{s}" in per_stage else 0.0 for s in range(1, 5)]
+            loss_vec += torch.tensor([float(loss.detach())] + stages, dtype=torch.float64) * share
+    bad = D.any_rank(bad, info)
+    if bad:
+        opt.zero_grad(set_to_none=True)
+        return loss_vec, True
+    if config.grad_clip is not None:
+        scaler.unscale_(opt)
+        torch.nn.utils.clip_grad_norm_([p for p in model.parameters() if p.requires_grad], config.grad_clip)
+    scaler.step(opt)
+    scaler.update()
+    return D.all_reduce_mean(loss_vec, info), False

@@ -1,0 +1,81 @@
+"""Training config: recipes, YAML round trip, --set overrides, resume differences."""
+
+import dataclasses
+
+import pytest
+import yaml
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.training.config import (
+    DTU_RESOLUTIONS,
+    RECIPES,
+    TrainConfig,
+    config_differences,
+    dump_config,
+    load_config,
+    parse_overrides,
+)
+
+
+def test_every_field_has_a_docstring():
+    import inspect
+
+    src = inspect.getsource(TrainConfig)
+    for f in dataclasses.fields(TrainConfig):
+        line = next(i for i, s in enumerate(src.splitlines()) if s.strip().startswith(f"{f.name}:"))
+        assert src.splitlines()[line + 1].strip().startswith('"""'), f.name
+
+
+def test_recipes_follow_the_reference():
+    dtu = RECIPES["dtu"]
+    assert (dtu.lr, dtu.warmup_steps, dtu.min_lr_ratio, dtu.epochs, dtu.batch_size) == (1e-3, 500, 0.01, 15, 16)
+    assert (dtu.num_views, dtu.num_depth, dtu.interval_scale, dtu.weight_decay) == (5, 192, 1.06, 0.0)
+    assert len(DTU_RESOLUTIONS) == 25 and DTU_RESOLUTIONS[0] == (512, 640) and DTU_RESOLUTIONS[-1] == (1024, 1280)
+    # the mean token count of the 25 scales is the n_train of adaptive attention scaling (spec 5)
+    assert sum((h // 8) * (w // 8) for h, w in DTU_RESOLUTIONS) / 25 == pytest.approx(12185.6)
+    ft = RECIPES["blended_finetune"]
+    assert (ft.lr, ft.min_lr_ratio, ft.epochs, ft.preset) == (1e-4, 0.005, 10, "paper_finetune")
+
+
+def test_yaml_round_trip_and_overrides(tmp_path):
+    cfg = load_config("synthetic", parse_overrides(["lr=1e-4", "loss_weights=[0,0,0,1]", "resolutions=[[64,96]]",
+                                                    "max_steps=7", "init_checkpoint=null"]))
+    assert cfg.lr == 1e-4 and cfg.loss_weights == (0.0, 0.0, 0.0, 1.0) and cfg.resolutions == ((64, 96),)
+    assert cfg.max_steps == 7 and cfg.init_checkpoint is None
+    path = tmp_path / "run.yaml"
+    path.write_text(dump_config(cfg))
+    assert load_config(str(path)) == cfg
+    path.write_text(yaml.safe_dump({"recipe": "dtu", "lr": 0.5}))
+    loaded = load_config(str(path))
+    assert loaded.lr == 0.5 and loaded.batch_size == RECIPES["dtu"].batch_size
+
+
+@pytest.mark.parametrize("item,match", [("nosuchfield=1", "unknown training config keys"),
+                                        ("lr=fast", "needs a number"), ("precision=fp8", "must be one of"),
+                                        ("loss_weights=[1,2]", "needs 4 values"), ("lr", "key=value")])
+def test_bad_overrides_say_what_is_wrong(item, match):
+    with pytest.raises(InputError, match=match):
+        load_config("synthetic", parse_overrides([item]))
+
+
+def test_differences_ignore_fields_that_do_not_change_the_trajectory():
+    a = RECIPES["synthetic"]
+    b = dataclasses.replace(a, lr=0.5, num_workers=3, save_every=9)
+    assert config_differences(a, b) == ["lr: 0.001 -> 0.5"]
+
+
+def test_finetune_preset_and_recipe_loss_weights():
+    from mvsformerpp.models.config import get_config
+
+    assert get_config("paper").loss_weights == (1.0, 1.0, 1.0, 1.0)
+    assert get_config("paper_finetune").loss_weights == (0.0, 0.0, 0.0, 1.0)  # the reference's fine-tune loss
+    assert RECIPES["blended_finetune"].loss_weights == (1.0, 1.0, 1.0, 1.0)
+    assert load_config("blended_finetune", {"loss_weights": None}).loss_weights is None  # -> the preset's
+
+
+def test_micro_batch_by_height():
+    from mvsformerpp.training.trainer import micro_batch_for
+
+    dtu = RECIPES["dtu"]
+    assert micro_batch_for(dtu, 704, 4) == 4 and micro_batch_for(dtu, 768, 4) == 2
+    assert micro_batch_for(RECIPES["synthetic"], 128, 4) == 4

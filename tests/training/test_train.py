@@ -1,0 +1,89 @@
+"""The trainer on tiny synthetic scenes: outputs, checkpoints loadable by reconstruct, bad input."""
+
+import errno
+import json
+from pathlib import Path
+
+import pytest
+import torch
+import yaml
+
+from mvsformerpp.data import SyntheticDataset
+from mvsformerpp.errors import InputError
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig, build_network
+from mvsformerpp.pipelines.train import run_training
+from mvsformerpp.training.checkpoints import CheckpointWriteError
+from mvsformerpp.training.datasets import build_datasets
+from mvsformerpp.training.trainer import TrainingError
+
+from .train_utils import tiny_config
+
+
+def test_run_folder_checkpoints_and_reconstruct_loads_them(tmp_path):
+    cfg = tiny_config(tensorboard=True)
+    run = tmp_path / "run"
+    summary = run_training(cfg, run)
+    assert summary["steps"] == 2 and summary["bad_steps"] == 0
+    assert yaml.safe_load((run / "config.yaml").read_text()) == cfg.to_dict()
+    rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+    train_rows = [r for r in rows if "split" not in r]
+    assert [r["step"] for r in train_rows] == [1, 2]
+    assert {"loss", "lr", "stage1", "stage2", "stage3", "stage4", "samples_per_s"} <= set(train_rows[0])
+    assert train_rows[0]["lr"] == 0.0 and train_rows[1]["lr"] == pytest.approx(1e-3)  # one warm-up step
+    val = [r for r in rows if r.get("split") == "val"]
+    assert val and {"val_loss", "mae", "abs_rel", "acc@1"} <= set(val[-1])
+    assert list((run / "tb").glob("events.out.tfevents.*"))
+    ckpts = run / "checkpoints"
+    assert {p.name for p in ckpts.iterdir()} == {"last.safetensors", "last.state.pt", "best.safetensors"}
+    model = build_network(ReconstructConfig(preset="lite", checkpoint=str(ckpts / "last.safetensors")))
+    from safetensors.torch import load_file
+
+    saved = load_file(str(ckpts / "last.safetensors"))
+    assert all(torch.equal(saved[k], v) for k, v in model.state_dict().items())
+    # the folder holds a run: a new start needs --resume, a resume needs the same config
+    with pytest.raises(InputError, match="--resume"):
+        run_training(cfg, run)
+    with pytest.raises(InputError, match=r"lr: 0.001 -> 0.01.*seed: 0 -> 5"):
+        run_training(tiny_config(tensorboard=True, lr=1e-2, seed=5), run, resume=True)
+    with pytest.raises(InputError, match="nothing to resume"):
+        run_training(cfg, tmp_path / "empty", resume=True)
+
+
+class NaNImages(SyntheticDataset):
+    def __getitem__(self, key):
+        item = super().__getitem__(key)
+        item["imgs"] = torch.full_like(item["imgs"], float("nan"))
+        return item
+
+
+def test_non_finite_losses_skip_steps_then_stop(tmp_path):
+    cfg = tiny_config(max_steps=3, max_bad_steps=1)
+    train, val = build_datasets(cfg)
+    bad = NaNImages(4, num_views=3, views_per_scene=3, render_scale=1.0)
+    with pytest.raises(TrainingError, match="2 steps had a non-finite loss"):
+        run_training(cfg, tmp_path / "run", datasets=(bad, val))
+
+
+def test_disk_full_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
+    cfg = tiny_config(max_steps=2)
+    run = tmp_path / "run"
+    import mvsformerpp.training.checkpoints as C
+    import mvsformerpp.utils.atomic as A
+
+    real, calls = A.atomic_write_bytes, []
+
+    def flaky(path, data):
+        if "last." in Path(path).name:
+            calls.append(path)
+        if len(calls) > 2:  # step 1's state and weights are written, then the disk is full
+            raise OSError(errno.ENOSPC, "No space left on device")
+        real(path, data)
+
+    monkeypatch.setattr(C, "atomic_write_bytes", flaky)
+    monkeypatch.setattr(A, "atomic_write_bytes", flaky)
+    with pytest.raises(CheckpointWriteError, match="the disk is full.*previous checkpoint is intact"):
+        run_training(cfg, run)
+    monkeypatch.undo()
+    state = torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)
+    assert state["step"] == 1
+    assert run_training(cfg, run, resume=True)["steps"] == 2
