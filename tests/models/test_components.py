@@ -91,7 +91,15 @@ def test_frustoconical_coordinates_in_unit_cube_and_encoding_range():
     assert c.min() >= 0 and c.max() <= 1
     assert c[:, 0].max() > 0.99 and c[:, 2].min() < 1e-3  # min-max normalised: the range is used
     pe = sine_encoding_3d(c, 8)
-    assert pe.shape == (1, 24, 32, 8, 10) and pe.abs().max() <= 1
+    assert pe.shape == (1, 24, 32, 8, 10)
+    # Channel 2i of axis a is sin(4 c_a w_i) and 2i+1 its cos, w_i = 10000^(-2i/8), written out here:
+    # the depth axis (a = 2) at one voxel, and the two frequencies of the x axis at another.
+    d, y, x = 7, 3, 5
+    for i in range(4):
+        w = 10000.0 ** (-2 * i / 8)
+        torch.testing.assert_close(pe[0, 16 + 2 * i, d, y, x], torch.sin(4 * c[0, 2, d, y, x] * w))
+        torch.testing.assert_close(pe[0, 16 + 2 * i + 1, d, y, x], torch.cos(4 * c[0, 2, d, y, x] * w))
+        torch.testing.assert_close(pe[0, 2 * i, 0, 0, 0], torch.sin(4 * c[0, 0, 0, 0, 0] * w))
 
 
 def test_2d_position_encoding_is_resolution_normalised():
