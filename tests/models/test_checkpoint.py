@@ -1,8 +1,13 @@
 """Checkpoint loading: official layouts, pickled foreign objects, DINOv2 backbone files, safetensors."""
 
+import contextlib
+import os
+import pickle
+import struct
 import subprocess
 import sys
 import textwrap
+import zipfile
 
 import pytest
 import torch
@@ -40,9 +45,16 @@ def test_official_checkpoint_with_ddp_prefix_and_pickled_config(tmp_path, lite):
     moddir = tmp_path / "mods"
     moddir.mkdir()
     (moddir / "parse_config.py").write_text(textwrap.dedent("""
-        class ConfigParser:
+        import logging
+        from collections import OrderedDict
+        from pathlib import Path
+
+        class ConfigParser:  # the attributes the reference trainer's ConfigParser pickles
             def __init__(self):
-                self.config = {"arch": {"args": {"ndepths": [32, 16, 8, 4]}}}
+                self._config = OrderedDict(arch=OrderedDict(args={"ndepths": [32, 16, 8, 4]}))
+                self.resume = Path("saved/models/model_best.pth")
+                self._save_dir = Path("saved/models/mvsformer++")
+                self.log_levels = {0: logging.WARNING, 1: logging.INFO}
     """))
     path = tmp_path / "model_best.pth"
     script = textwrap.dedent(f"""
@@ -50,7 +62,8 @@ def test_official_checkpoint_with_ddp_prefix_and_pickled_config(tmp_path, lite):
         sys.path.insert(0, {str(moddir)!r})
         from parse_config import ConfigParser
         sd = torch.load({str(tmp_path / 'sd.pt')!r})
-        ckpt = {{"arch": "DINOv2MVSNet", "epoch": 9, "config": ConfigParser(),
+        import numpy as np
+        ckpt = {{"arch": "DINOv2MVSNet", "epoch": 9, "config": ConfigParser(), "monitor_best": np.float64(0.25),
                  "state_dict": {{"module." + k: v for k, v in sd.items()}}}}
         ckpt["state_dict"]["module.FMT_module.FMT.pos_encoding.pe_dict.8-10"] = torch.zeros(1)
         torch.save(ckpt, {str(path)!r})
@@ -110,3 +123,83 @@ def test_package_exports_are_lazy():
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True)
     assert out.stdout.strip() == "ok", out.stderr
     assert mvsformerpp.build_model is build_model
+
+
+# ------------------------------------------------------------------------ crafted checkpoints
+# Each payload creates a marker file when unpickled by a loader that resolves what it names; the
+# test first proves the payload is live (plain pickle / torch.load(weights_only=False) in a child
+# process), then that load_checkpoint refuses it, naming the file, without running it.
+
+def _unicode(text: str) -> bytes:
+    data = text.encode()
+    return pickle.BINUNICODE + struct.pack("<I", len(data)) + data
+
+
+def _dotted_global_pickle(code: str, stack_global: bool) -> bytes:
+    """Protocol 4: ``torch._utils`` + ``_rebuild_tensor_v2.__builtins__.get`` walks to ``eval``."""
+    module, name = "torch._utils", "_rebuild_tensor_v2.__builtins__.get"
+    head = (_unicode(module) + _unicode(name) + pickle.STACK_GLOBAL if stack_global
+            else pickle.GLOBAL + f"{module}\n{name}\n".encode())
+    return (pickle.PROTO + b"\x04" + head + _unicode("eval") + pickle.TUPLE1 + pickle.REDUCE
+            + _unicode(code) + pickle.TUPLE1 + pickle.REDUCE + pickle.STOP)
+
+
+def _torch_zip_with_pickle(path, data_pkl: bytes) -> None:
+    """A real torch zip checkpoint whose data.pkl is replaced by ``data_pkl``."""
+    torch.save({"state_dict": {"w": torch.zeros(2)}}, path)
+    with zipfile.ZipFile(path) as z:
+        entries = {info.filename: z.read(info) for info in z.infolist()}
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_STORED) as z:
+        for name, data in entries.items():
+            z.writestr(name, data_pkl if name.endswith("/data.pkl") else data)
+
+
+class _System:
+    def __init__(self, command):
+        self.command = command
+
+    def __reduce__(self):
+        return os.system, (self.command,)
+
+
+def _crafted(kind: str, path, marker) -> None:
+    code = f"open({str(marker)!r}, 'w').close()"
+    if kind == "reduce":  # a plain pickle calling os.system
+        path.write_bytes(pickle.dumps(_System(f"touch '{marker}'"), protocol=2))
+    elif kind == "reduce_in_official_layout":  # valid weights plus a pickled os.system call as 'config'
+        torch.save({"state_dict": {"w": torch.zeros(2)}, "config": _System(f"touch '{marker}'")}, path)
+    elif kind == "zip_stack_global_dotted":
+        _torch_zip_with_pickle(path, _dotted_global_pickle(code, stack_global=True))
+    elif kind == "zip_global_dotted":
+        _torch_zip_with_pickle(path, _dotted_global_pickle(code, stack_global=False))
+    elif kind == "raw_dotted":
+        path.write_bytes(_dotted_global_pickle(code, stack_global=True))
+    elif kind == "config_name_dotted":  # an allowed record name with an attribute path appended
+        data = (pickle.PROTO + b"\x02" + pickle.GLOBAL + b"parse_config.ConfigParser.__init__.__builtins__.get\n"
+                + _unicode("eval") + pickle.TUPLE1 + pickle.REDUCE + _unicode(code) + pickle.TUPLE1
+                + pickle.REDUCE + pickle.STOP)
+        _torch_zip_with_pickle(path, data)
+
+
+CRAFTED = ["reduce", "reduce_in_official_layout", "zip_stack_global_dotted", "zip_global_dotted", "raw_dotted",
+           "config_name_dotted"]
+
+
+@pytest.mark.parametrize("kind", CRAFTED)
+def test_crafted_checkpoint_never_runs_code(tmp_path, kind):
+    path, marker = tmp_path / f"{kind}.pth", tmp_path / "pwned"
+    _crafted(kind, path, marker)
+    if kind != "config_name_dotted":  # the payload is live: an unrestricted load runs it (it only creates marker)
+        try:
+            torch.load(path, weights_only=False)
+        except Exception:
+            with open(path, "rb") as f, contextlib.suppress(Exception):
+                pickle.load(f)
+        assert marker.exists(), "the crafted payload did not run even unrestricted"
+        marker.unlink()
+    with pytest.raises(InputError) as err:
+        load_checkpoint(build_model("lite"), path)
+    assert not marker.exists()
+    msg = str(err.value)
+    assert msg.startswith(str(path)) and "\n" not in msg
+    assert "refusing to load" in msg or "cannot read" in msg

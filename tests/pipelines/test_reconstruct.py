@@ -150,7 +150,7 @@ def test_resume_after_interruption_computes_only_missing_views(scene4, tmp_path)
     with pytest.raises(KeyboardInterrupt):
         reconstruct(scene4, out, FAST, quiet=True, model=model)
     assert sorted(p.name for p in (out / "depth_est").iterdir()) == ["00000000.pfm", "00000001.pfm"]
-    assert not list(out.rglob("*.tmp")) and not list(out.rglob(".*"))
+    assert not list(out.rglob("*.tmp")) and {p.name for p in out.rglob(".*")} <= {".mvsformerpp", ".mvsformerpp.lock"}
     before = outputs(out)
 
     resumed = fake_model()
@@ -224,10 +224,10 @@ def test_bad_input_gets_a_clear_error(scene4, tmp_path, case, match):
         (scene4 / "templeSR0003.png").write_bytes(b"not a png at all")
     elif case == "one_view":
         src = temple_subset(tmp_path / "one", [1])
-    elif case == "empty_range":
-        cfg = dataclasses.replace(FAST, depth_range=(0.6, 0.5))
-    elif case == "negative_range":
-        cfg = dataclasses.replace(FAST, depth_range=(-1.0, 0.5))
+    elif case in ("empty_range", "negative_range"):  # refused as soon as the settings are made
+        with pytest.raises(MVSFormerError, match=match):
+            dataclasses.replace(FAST, depth_range=(0.6, 0.5) if case == "empty_range" else (-1.0, 0.5))
+        return
     elif case == "missing_input":
         src = tmp_path / "nowhere"
     with pytest.raises(MVSFormerError, match=match):

@@ -7,13 +7,23 @@ Each subcommand module defines ``register(subparsers)``, which adds its parser a
 from __future__ import annotations
 
 import argparse
+import errno
 import importlib
+import logging
 import sys
 
 from mvsformerpp.errors import MVSFormerError
 
 # Subcommand modules, in the order `--help` lists them.
 COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "evaluate", "info", "synth", "train")
+
+
+# Operating-system errors the user fixes (space, permissions, read-only media, a path under a file).
+_USER_FIXABLE = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR}
+
+
+def _one_line(message: str) -> str:
+    return " ".join(message.split("\n")).strip()
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -30,7 +40,21 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+class _WarningLines(logging.Handler):
+    """The package's warnings as ``warning: ...`` lines on the current stderr."""
+
+    def emit(self, record: logging.LogRecord) -> None:
+        print(f"warning: {_one_line(record.getMessage())}", file=sys.stderr)
+
+
+def _show_warnings() -> None:
+    logger = logging.getLogger("mvsformerpp")
+    if not any(isinstance(h, _WarningLines) for h in logger.handlers):
+        logger.addHandler(_WarningLines(logging.WARNING))
+
+
 def main(argv: list[str] | None = None) -> int:
+    _show_warnings()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):
@@ -39,7 +63,19 @@ def main(argv: list[str] | None = None) -> int:
     try:
         return int(args.func(args) or 0)
     except MVSFormerError as e:
-        print(f"error: {e}", file=sys.stderr)
+        print(f"error: {_one_line(str(e))}", file=sys.stderr)
+        return 2
+    except OSError as e:
+        if e.errno not in _USER_FIXABLE:
+            raise
+        where = f"{e.filename}: " if e.filename else ""
+        advice = {errno.ENOSPC: "free some space and run the same command again",
+                  errno.EDQUOT: "free some space and run the same command again"}.get(
+            e.errno, "choose a location you can write to")
+        print(f"error: {where}{e.strerror}; {advice} (finished outputs are kept)", file=sys.stderr)
+        return 2
+    except MemoryError:
+        print("error: out of memory; use smaller inputs or settings (e.g. --max-size, --memory-gb)", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print("interrupted; run the same command again to continue where it stopped", file=sys.stderr)

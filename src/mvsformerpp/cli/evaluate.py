@@ -11,6 +11,14 @@ import numpy as np
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.utils.atomic import atomic_write_text
+from mvsformerpp.utils.output_guard import writing
+
+
+def _positive(flag: str, *values: float) -> None:
+    """Refuse zero, negative and non-finite values of ``flag``, naming the value."""
+    for v in values:
+        if not (math.isfinite(v) and v > 0):
+            raise InputError(f"{flag} must be a positive number, got {v:g}")
 
 
 def _write_json(path: str | None, payload) -> None:
@@ -24,7 +32,8 @@ def _write_json(path: str | None, payload) -> None:
                 return [clean(x) for x in v]
             return v
 
-        atomic_write_text(path, json.dumps(clean(payload), indent=2) + "\n")
+        with writing(path):
+            atomic_write_text(path, json.dumps(clean(payload), indent=2) + "\n")
         print(f"wrote {path}")
 
 
@@ -43,8 +52,9 @@ def _extras(dist, args, threshold: float, pred_pts, gt_pts) -> None:
 
     if args.error_ply:
         out = Path(args.error_ply)
-        write_error_ply(out.with_name(out.stem + "_precision.ply"), pred_pts, dist.pred_to_gt, threshold)
-        write_error_ply(out.with_name(out.stem + "_recall.ply"), gt_pts, dist.gt_to_pred, threshold)
+        for suffix, pts, d in (("_precision.ply", pred_pts, dist.pred_to_gt), ("_recall.ply", gt_pts, dist.gt_to_pred)):
+            with writing(out.with_name(out.stem + suffix)):
+                write_error_ply(out.with_name(out.stem + suffix), pts, d, threshold)
         print(f"wrote {out.stem}_precision.ply and {out.stem}_recall.ply (blue = 0, red >= threshold)")
     if args.plot:
         plot_pr_curves(args.plot, dist.curve(np.linspace(0, 5 * threshold, 101)[1:]), threshold)
@@ -55,6 +65,7 @@ def _cmd_cloud(args) -> int:
     from mvsformerpp.evaluation.cloud import cloud_distances
     from mvsformerpp.evaluation.distances import load_cloud
 
+    _positive("--threshold", args.threshold)
     pred, gt = load_cloud(args.pred, "prediction"), load_cloud(args.gt, "ground truth")
     dist = cloud_distances(pred, gt)
     m = dist.metrics(args.threshold)
@@ -66,6 +77,11 @@ def _cmd_cloud(args) -> int:
 
 def _cmd_depth(args) -> int:
     from mvsformerpp.evaluation.depth import evaluate_depth_dirs, format_depth_table
+
+    _positive("--thresholds", *args.thresholds)
+    _positive("--interval", args.interval)
+    if not (math.isfinite(args.inlier_ratio) and args.inlier_ratio > 1):
+        raise InputError(f"--inlier-ratio must be a number above 1, got {args.inlier_ratio:g}")
 
     report = evaluate_depth_dirs(args.pred_dir, args.gt_dir, args.mask_dir, tuple(args.thresholds),
                                  args.interval, args.inlier_ratio)
@@ -116,6 +132,9 @@ def _cmd_dtu(args) -> int:
 def _cmd_tnt(args) -> int:
     from mvsformerpp.evaluation.tnt import evaluate_tnt
 
+    if args.threshold is not None:
+        _positive("--threshold", args.threshold)
+
     res = evaluate_tnt(args.pred, args.gt, args.scene, args.threshold, args.crop, args.alignment, args.refine)
     _print_cloud(res.metrics, "m")
     _write_json(args.json, res.metrics.to_dict())
@@ -147,6 +166,8 @@ def _cmd_tnt_submit(args) -> int:
 
 def _cmd_eth3d(args) -> int:
     from mvsformerpp.evaluation.eth3d import evaluate_eth3d, format_eth3d_table
+
+    _positive("--tolerances", *args.tolerances)
 
     rows = evaluate_eth3d(args.pred, args.gt, tuple(args.tolerances))
     print(format_eth3d_table(rows))

@@ -31,10 +31,20 @@ def register(sub: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from mvsformerpp.errors import InputError
     from mvsformerpp.fusion import get_config
     from mvsformerpp.pipelines.fuse import fuse
+    from mvsformerpp.utils.device import parse_device
+    from mvsformerpp.utils.output_guard import claim_output_file, writing
 
     config = get_config(args.preset, conf_threshold=args.conf, disp_threshold=args.disp,
                         num_consistent=args.num_consistent, num_src_views=args.num_src_views)
-    fuse(args.folder, args.output, config, device=args.device, quiet=args.quiet, memory_gb=args.memory_gb)
+    parse_device(args.device)
+    if not Path(args.folder).is_dir():
+        raise InputError("no such folder", args.folder)
+    out = Path(args.output) if args.output else Path(args.folder) / "fused.ply"
+    with claim_output_file(out, b"ply", "PLY"), writing(out):
+        fuse(args.folder, out, config, device=args.device, quiet=args.quiet, memory_gb=args.memory_gb)
     return 0

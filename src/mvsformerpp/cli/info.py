@@ -40,5 +40,15 @@ def run(args: argparse.Namespace) -> int:
         short_range=args.short_range,
     )
     summary = summarize_scene(scene, layout, per_view=args.views)
+    if layout in ("mvsnet", "tnt") and not args.depth_range:
+        from pathlib import Path
+
+        from mvsformerpp.io.detect import mvsnet_cam_dir
+        from mvsformerpp.io.mvsnet import depth_line_forms
+
+        root = Path(args.scene) if Path(args.scene).is_dir() else Path(args.scene).parent
+        cam_dir = mvsnet_cam_dir(root)
+        if cam_dir is not None:
+            summary["depth_lines"] = depth_line_forms(cam_dir, args.depth_format)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0

@@ -31,6 +31,9 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help=f"views per depth map: the reference plus N-1 neighbours (default: {_DEFAULT.num_views})")
     g.add_argument("--depth-range", type=float, nargs=2, metavar=("MIN", "MAX"),
                    help="override every view's depth range (scene units)")
+    g.add_argument("--depth-format", choices=("auto", "interval", "max"), default=_DEFAULT.depth_format,
+                   help="how to read a two-number depth line in MVSNet cam files: MIN INTERVAL, MIN MAX, or "
+                        "auto (MAX when the second number is larger; default)")
     g.add_argument("--max-images", type=int, metavar="N",
                    help="use only N overlapping views: the first view and its best neighbours")
     g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "none"), default=_DEFAULT.fusion,
@@ -45,6 +48,7 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         preset=args.preset, checkpoint=args.checkpoint, device=args.device, precision=args.precision,
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
+        depth_format=args.depth_format,
         fusion=args.fusion, cache_mb=args.cache_mb,
     )
 

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+MAX_SIZE = 8192  # pixels per side
+MAX_VIEWS = 1000
+
 
 def register(sub: argparse._SubParsersAction) -> None:
     p = sub.add_parser(
@@ -30,14 +33,21 @@ def register(sub: argparse._SubParsersAction) -> None:
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.errors import InputError
     from mvsformerpp.synth import generate_dataset, generate_scene
+    from mvsformerpp.utils.output_guard import claim_output_folder
 
     if args.views < 2 or args.height < 32 or args.width < 32 or args.scenes < 1:
-        raise InputError("need --views >= 2, --height/--width >= 32 and --scenes >= 1")
+        raise InputError(f"need --views >= 2, --height/--width >= 32 and --scenes >= 1, got --views {args.views} "
+                         f"--height {args.height} --width {args.width} --scenes {args.scenes}")
+    if args.height > MAX_SIZE or args.width > MAX_SIZE or args.views > MAX_VIEWS:
+        raise InputError(f"--height and --width must be at most {MAX_SIZE} and --views at most {MAX_VIEWS} "
+                         f"(rendering needs about 100 bytes per pixel), got --height {args.height} --width "
+                         f"{args.width} --views {args.views}")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
               style=args.style)
-    if args.scenes == 1:
-        out = generate_scene(args.output, seed=args.seed, **kw)
-    else:
-        out = generate_dataset(args.output, args.scenes, seed=args.seed, **kw)
+    with claim_output_folder(args.output, kind="synth", reuse=False):
+        if args.scenes == 1:
+            out = generate_scene(args.output, seed=args.seed, **kw)
+        else:
+            out = generate_dataset(args.output, args.scenes, seed=args.seed, **kw)
     print(f"wrote {args.scenes} scene(s) to {out}")
     return 0

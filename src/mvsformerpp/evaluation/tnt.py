@@ -91,6 +91,10 @@ def load_alignment(path: str | Path) -> np.ndarray:
         raise FormatError(f"the alignment must be 4 rows of 4 numbers ({e})", path) from e
     if m.shape != (4, 4) or not np.isfinite(m).all():
         raise FormatError(f"the alignment must be a finite 4x4 matrix, got shape {m.shape}", path)
+    det = float(np.linalg.det(m[:3, :3]))
+    if not abs(det) > 1e-12 or np.any(m[3] != [0, 0, 0, 1]):
+        raise FormatError(f"the alignment is not an invertible similarity transform (det of its 3x3 part {det:g}, "
+                          f"last row {m[3].tolist()}); it would collapse the cloud", path)
     return m
 
 

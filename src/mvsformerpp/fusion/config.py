@@ -31,6 +31,23 @@ class FusionConfig:
     chunk_pixels: int = 1 << 20
     """Reference pixels processed at once (bounds memory: about 100 bytes x pixels x source views)."""
 
+    def __post_init__(self) -> None:
+        checks = [
+            ("conf_threshold", "--conf", 0.0 <= self.conf_threshold < 1.0, "a confidence in [0, 1)"),
+            ("disp_threshold", "--disp", self.disp_threshold > 0, "positive"),
+            ("rel_depth_threshold", "rel_depth_threshold", self.rel_depth_threshold > 0, "positive"),
+            ("num_consistent", "--num-consistent", self.num_consistent >= 1, "at least 1"),
+            ("num_src_views", "--num-src-views", self.num_src_views >= 1, "at least 1"),
+            ("dist_base", "dist_base", self.dist_base > 0, "positive"),
+            ("rel_diff_base", "rel_diff_base", self.rel_diff_base > 0, "positive"),
+            ("chunk_pixels", "chunk_pixels", self.chunk_pixels >= 1, "at least 1"),
+        ]
+        for field, flag, ok, what in checks:
+            if not ok:  # NaN fails every comparison, so it lands here too
+                from mvsformerpp.errors import InputError
+
+                raise InputError(f"{flag} must be {what}, got {getattr(self, field)}")
+
     def to_dict(self) -> dict:
         return dataclasses.asdict(self)
 

@@ -47,22 +47,29 @@ def find_colmap_model(project: str | Path) -> tuple[Path, Path | None]:
     """``(model_dir, image_dir)`` of a COLMAP project folder (or of a model folder itself).
 
     The model is looked for in ``sparse/0``, ``sparse``, ``dense/sparse``, ``dense/0/sparse`` and the
-    folder itself; photos in ``images/`` beside the model or the project. ``image_dir`` is None when
-    no image folder is found.
+    folder itself, preferring one with an ``images/`` folder beside it: in a folder holding both a
+    distorted sparse model without photos and an undistorted ``dense/{images,sparse}`` workspace (what
+    structure from motion writes), ``dense/`` is the pair that belongs together. Photos are taken from
+    ``images/`` beside the model, else the project's ``images/``, ``dense/images``, else ``images/`` beside
+    the folder given (when it is the model itself); ``image_dir`` is None
+    when no image folder is found.
     """
     project = Path(project)
-    for sub in MODEL_SUBDIRS:
-        model_dir = project / sub
-        if model_extension(model_dir):
-            break
-    else:
+    found = [project / sub for sub in MODEL_SUBDIRS if model_extension(project / sub)]
+    if not found:
         raise InputError(
             "no COLMAP model found (looked for cameras/images/points3D .bin or .txt in "
             + ", ".join(f"{s}/" for s in MODEL_SUBDIRS) + ")",
             project,
         )
-    candidates = [project / s for s in IMAGE_SUBDIRS]
-    candidates += [model_dir.parent / "images", model_dir.parent.parent / "images"]
+
+    def beside(model_dir: Path) -> list[Path]:
+        near = [model_dir, model_dir.parent, model_dir.parent.parent]
+        return [c / "images" for c in near if (c == project or project in c.parents) and (c / "images").is_dir()]
+
+    model_dir = next((m for m in found if beside(m)), found[0])
+    candidates = beside(model_dir) + [project / s for s in IMAGE_SUBDIRS]
+    candidates += [model_dir.parent / "images", model_dir.parent.parent / "images"]  # a model folder given itself
     image_dir = next((c for c in candidates if c.is_dir()), None)
     return model_dir, image_dir
 
@@ -117,6 +124,9 @@ def load_colmap_scene(
             raise InputError(_undistorted_hint(cam), model_dir)
 
     images = sorted(model.images.values(), key=lambda im: im.name)
+    if not model.points3D:
+        raise InputError("the COLMAP model has no 3-D points (points3D is empty); neighbour views and depth ranges "
+                         "come from them: run the triangulation / mapping again", model_dir)
     point_ids = np.array(sorted(model.points3D), dtype=np.int64)
     xyz = np.stack([model.points3D[p].xyz for p in point_ids]) if len(point_ids) else np.zeros((0, 3))
     views, visibility = [], []
@@ -140,7 +150,10 @@ def load_colmap_scene(
         R = im.R
         ids = im.point3D_ids[im.point3D_ids >= 0]
         idx = np.searchsorted(point_ids, ids)
-        idx = idx[(idx < len(point_ids)) & (point_ids[np.minimum(idx, len(point_ids) - 1)] == ids)]
+        if len(point_ids):
+            idx = idx[(idx < len(point_ids)) & (point_ids[np.minimum(idx, len(point_ids) - 1)] == ids)]
+        else:  # a model without 3-D points: no image sees any
+            idx = idx[:0]
         visibility.append(idx)
         z = (xyz[idx] @ R.T + im.tvec)[:, 2]
         rng = depth_range_from_points(z, percentiles, margin)

@@ -42,11 +42,29 @@ _LOOKED_FOR = (
 _MODEL_FILES = {f"{n}{e}" for n in ("cameras", "images", "points3D") for e in (".bin", ".txt")}
 
 
-def _mvsnet_cam_dir(path: Path) -> Path | None:
+def mvsnet_cam_dir(path: Path) -> Path | None:
     for name in ("cams", "cams_1"):
         if (path / name).is_dir() and cam_files(path / name):
             return path / name
     return None
+
+
+def _refuse_incomplete(path: Path) -> None:
+    """Name what is missing from a folder that is almost a COLMAP model or an MVSNet scene."""
+    from mvsformerpp.io.colmap import MODEL_SUBDIRS
+
+    for sub in MODEL_SUBDIRS:
+        folder = path / sub
+        have = {n for n in ("cameras", "images", "points3D") for e in (".bin", ".txt")
+                if (folder / f"{n}{e}").is_file()}
+        if have and len(have) < 3:
+            missing = sorted({"cameras", "images", "points3D"} - have)
+            raise InputError(f"incomplete COLMAP model in {sub or '.'}/: {', '.join(missing)} (.bin or .txt) is "
+                             "missing; a model needs cameras, images and points3D", path)
+    if (path / "images").is_dir() and not list_images(path) and (
+            (path / "pair.txt").is_file() or (path / "cams").is_dir()):
+        raise InputError("this looks like an MVSNet scene but has no cam files (cams/NNNNNNNN_cam.txt beside "
+                         "images/); add them, or give a folder of photos for structure-from-motion", path)
 
 
 def detect_layout(path: str | Path) -> str:
@@ -67,7 +85,7 @@ def detect_layout(path: str | Path) -> str:
         return "dtu"
     if blended_scene_dir(path) is not None:
         return "blendedmvs"
-    if (path / "images").is_dir() and _mvsnet_cam_dir(path) is not None:
+    if (path / "images").is_dir() and mvsnet_cam_dir(path) is not None:
         if (path.parent / "short_range_cameras").is_dir():
             return "tnt"
         return "mvsnet"
@@ -78,6 +96,7 @@ def detect_layout(path: str | Path) -> str:
         pass
     if find_par_file(path) is not None:
         return "middlebury"
+    _refuse_incomplete(path)
     if list_images(path) or list_images(path / "images"):
         return "images"
     raise InputError(f"no scene found here; looked for {_LOOKED_FOR}", path)
@@ -137,7 +156,7 @@ def load_scene(
         scene = load_tnt_scene(path.parent if path.is_file() else path, short_range=short_range, **cam_args)
     else:
         root = path.parent if path.is_file() else path
-        cam_dir = _mvsnet_cam_dir(root)
+        cam_dir = mvsnet_cam_dir(root)
         scene = load_mvsnet_scene(root, cam_dir=cam_dir.name if cam_dir else None, **cam_args)
     if depth_range is not None:
         for v in scene.views:

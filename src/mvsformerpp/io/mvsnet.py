@@ -73,6 +73,8 @@ class MVSNetCam:
     depth_max: float | None = None
     depth_interval: float | None = None
     num_depth: int | None = None
+    depth_line: str | None = None
+    """How the depth line was read: ``MIN INTERVAL``, ``MIN MAX``, ``MIN INTERVAL NUM`` or ``MIN INTERVAL NUM MAX``."""
 
     @property
     def R(self) -> np.ndarray:
@@ -89,7 +91,8 @@ def _floats(tokens: list[str], path: Path, what: str) -> np.ndarray:
     except ValueError as e:
         raise FormatError(f"{what}: expected numbers, got {' '.join(tokens)!r}", path) from e
     if not np.all(np.isfinite(vals)):
-        raise FormatError(f"{what} contains non-finite numbers ({' '.join(tokens)})", path)
+        shown = " ".join(tokens[:4]) + (" ..." if len(tokens) > 4 else "")
+        raise FormatError(f"{what} contains non-finite numbers ({shown})", path)
     return vals
 
 
@@ -127,7 +130,7 @@ def _parse_depth(
     if not 0 < dmin < dmax:
         raise FormatError(
             f"depth range {dmin:g}..{dmax:g} from the depth line must satisfy 0 < min < max "
-            "(check the file, force depth_format='interval' or 'max', or give the depth range explicitly)",
+            "(check the file, read two numbers as --depth-format interval or max, or give --depth-range MIN MAX)",
             path,
         )
     return dmin, dmax, interval, stated
@@ -185,7 +188,17 @@ def read_cam(path: str | Path, depth_format: DepthFormat = "auto", num_depth: in
         cam.depth_min, cam.depth_max, cam.depth_interval, cam.num_depth = _parse_depth(
             nums, depth_format, num_depth, path
         )
+        two = "MIN MAX" if depth_format == "max" or (depth_format == "auto" and nums[1] > nums[0]) else "MIN INTERVAL"
+        cam.depth_line = {2: two, 3: "MIN INTERVAL NUM", 4: "MIN INTERVAL NUM MAX"}[len(nums)]
     return cam
+
+
+def depth_line_forms(cam_dir: str | Path, depth_format: DepthFormat = "auto") -> dict[str, int]:
+    """How many cam files in ``cam_dir`` had each depth-line form (see ``MVSNetCam.depth_line``)."""
+    from collections import Counter
+
+    forms = Counter(read_cam(p, depth_format).depth_line or "none" for p in cam_files(cam_dir).values())
+    return dict(forms.most_common())
 
 
 def _num(x: float) -> str:
@@ -245,8 +258,8 @@ def image_scale_factor(K: np.ndarray, width: int, height: int, where: Path) -> f
     """The factor s (1, an integer 2..8, or 1/s) by which ``K`` must be scaled for a ``width x height`` photo.
 
     A cam file does not state its image size; its principal point does, roughly. ``K`` is accepted as
-    is when (cx, cy) lies in the central 60% of the image. Otherwise, of the integer factors s = 2..8
-    and 1/s, the one putting s * (cx, cy) nearest the image centre is taken if that is within 15% of
+    is when (cx, cy) lies within 10% of the image size from its centre. Otherwise, of the integer factors
+    s = 2..8 and 1/s, the one putting s * (cx, cy) nearest the image centre is taken if that is within 10% of
     the image size; callers then use ``K[:2] *= s`` (the MVSNet convention for resized images, integer
     pixel coordinates) and log one warning per scene naming the factor. Anything else raises
     :class:`InputError`.
@@ -256,16 +269,16 @@ def image_scale_factor(K: np.ndarray, width: int, height: int, where: Path) -> f
     def off_centre(s: float) -> float:
         return max(abs(s * cx / width - 0.5), abs(s * cy / height - 0.5))
 
-    if off_centre(1.0) <= 0.3:
+    if off_centre(1.0) <= 0.1:
         return 1.0
     factors = [float(v) for v in range(2, 9)] + [1.0 / v for v in range(2, 9)]
     best = min(factors, key=off_centre)
-    if off_centre(best) <= 0.15:
+    if off_centre(best) <= 0.1:
         return best
     raise InputError(
-        f"the camera's principal point ({cx:g}, {cy:g}) does not fit the {width}x{height} image, nor any "
-        "integer rescaling of it: the photo and the camera file do not belong together (resize the "
-        "photo to the resolution the camera was calibrated for)",
+        f"the camera's principal point ({cx:g}, {cy:g}) does not fit the {width}x{height} image (it lies more "
+        "than 10% off the centre), nor any integer rescaling of it: the photo and the camera file do not belong "
+        "together (use the photo at the resolution the camera was calibrated for)",
         where,
     )
 

@@ -71,6 +71,9 @@ def read_pair(path: str | Path) -> Pairs:
                 raise FormatError(f"view {ref}: score {tok!r} of source view {src} is not a number", path) from e
             if not math.isfinite(score):
                 raise FormatError(f"view {ref}: score of source view {src} is not finite", path)
+            if any(s == src for s, _ in srcs):
+                raise FormatError(f"view {ref}: source view {src} is listed twice (each source once, best first)",
+                                  path)
             srcs.append((src, score))
         pairs[ref] = srcs
     if pos != len(tokens):

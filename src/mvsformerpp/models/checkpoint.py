@@ -1,16 +1,16 @@
 """Checkpoints: official MVSFormer++ ``model_best.pth``, Meta's DINOv2 weights, and our safetensors files.
 
 Loading is strict and never happens in a constructor. Official files are read with
-``torch.load(weights_only=True)``; only when they hold pickled non-tensor objects (the training
-config of the reference trainer) does a restricted unpickler read them, turning every class outside
-torch/numpy/the standard containers into an inert placeholder, so no foreign code is imported or run.
+``torch.load(weights_only=True)``; the pickled training config of the reference trainer is mapped to
+inert records by exact name (:data:`RECORDED_GLOBALS`), and a file holding any other Python object is
+refused, so no code from a checkpoint is imported or run.
 """
 
 from __future__ import annotations
 
 import json
 import pickle
-import types
+import re
 from pathlib import Path
 
 import torch
@@ -22,64 +22,72 @@ FORMAT_TAG = "mvsformerpp"
 
 
 # ----------------------------------------------------------------------------------------- reading
-class _Inert:
-    """Stands in for a pickled object whose class is not available (or not trusted)."""
+class PickledRecord:
+    """A pickled object of a class from another code base, kept as plain data.
+
+    The reference trainer stores its ``ConfigParser`` (with ``pathlib`` paths and, in some runs, numpy
+    scalars) beside the weights. Those names are mapped to this class, so loading only records the
+    constructor arguments and the state; no code of the original class is imported or run.
+    """
 
     def __init__(self, *args, **kwargs):
-        self._args, self._kwargs = args, kwargs
+        self.args, self.kwargs = args, kwargs
 
     def __setstate__(self, state):
-        self._state = state
-
-    def __setitem__(self, key, value):  # dict subclasses are rebuilt item by item
-        self.__dict__.setdefault("_items", {})[key] = value
-
-    def append(self, value):  # list subclasses
-        self.__dict__.setdefault("_list", []).append(value)
-
-    extend = lambda self, values: [self.append(v) for v in values]  # noqa: E731
+        self.state = state
 
 
-_SAFE_BUILTINS = {"set", "frozenset", "list", "dict", "tuple", "slice", "complex", "bytearray", "range", "bytes",
-                  "str", "int", "float", "bool", "object"}
-
-
-class _RestrictedUnpickler(pickle.Unpickler):
-    def find_class(self, module: str, name: str):
-        top = module.split(".")[0]
-        if (
-            (top == "torch" and (name.startswith("_rebuild") or name.endswith("Storage") or name in (
-                "Size", "device", "dtype", "Parameter", "Tensor", "float32", "float16", "bfloat16", "int64")))
-            or (module == "collections" and name in ("OrderedDict", "defaultdict"))
-            or (module == "builtins" and name in _SAFE_BUILTINS)
-            or (module == "copyreg" and name == "_reconstructor")
-            or (top == "numpy" and name in ("_reconstruct", "ndarray", "dtype", "scalar", "_frombuffer"))
-        ):
-            return super().find_class(module, name)
-        return type(name, (_Inert,), {"__module__": f"inert.{module}"})
-
-
-_restricted_pickle = types.SimpleNamespace(
-    Unpickler=_RestrictedUnpickler, load=lambda f, **kw: _RestrictedUnpickler(f, **kw).load(),
-    __name__="mvsformerpp_restricted_pickle",
+# The only names outside torch's own weights_only allow-list that a checkpoint may hold, matched
+# exactly (a dotted attribute path such as ``x.__builtins__.get`` never matches); each becomes a
+# PickledRecord. Everything else is refused.
+RECORDED_GLOBALS: tuple[str, ...] = (
+    "parse_config.ConfigParser",  # the reference trainer's config object
+    "pathlib.PosixPath", "pathlib.WindowsPath", "pathlib.PurePosixPath", "pathlib.PureWindowsPath",
+    "numpy.core.multiarray.scalar", "numpy._core.multiarray.scalar", "numpy.dtype",  # numpy scalars
+    *(f"numpy.dtypes.{t}DType" for t in ("Float64", "Float32", "Int64", "Int32", "Bool")),
 )
+
+_REFUSED_GLOBAL = re.compile(r"GLOBAL (\S+) was not an allowed global|unsupported GLOBAL (\S+)")
+# What torch's weights_only unpickler says when a pickle asks for more than tensors and containers.
+_REFUSED = re.compile(r"Unsupported global|unsupported GLOBAL|unrecognized function|"
+                      r"Can only (create|build|append|set|extend)", re.IGNORECASE)
+# Opcodes that import or call something; torch refuses them as "Unsupported operand N".
+_CODE_OPCODES = {op[0] for op in (pickle.STACK_GLOBAL, pickle.INST, pickle.OBJ, pickle.NEWOBJ_EX, pickle.EXT1,
+                                  pickle.EXT2, pickle.EXT4)}
+
+
+def _refused_code(message: str) -> bool:
+    operand = re.search(r"Unsupported operand (\d+)", message)
+    return bool(_REFUSED.search(message)) or (operand is not None and int(operand.group(1)) in _CODE_OPCODES)
 
 
 def read_torch_file(path: str | Path) -> object:
-    """torch.load on the CPU, weights_only where the file allows it, else the restricted unpickler."""
+    """``torch.load(weights_only=True)`` on the CPU; the names of :data:`RECORDED_GLOBALS` load as inert records.
+
+    A file that holds any other Python object (a pickled function call, a class from elsewhere, a
+    dotted attribute path) is refused with :class:`InputError` before anything of it runs.
+    """
     path = Path(path)
     if not path.is_file():
         raise InputError("checkpoint file not found", path)
+    records = [(PickledRecord, name) for name in RECORDED_GLOBALS]
     try:
-        return torch.load(path, map_location="cpu", weights_only=True)
-    except pickle.UnpicklingError:
-        pass
+        with torch.serialization.safe_globals(records):
+            return torch.load(path, map_location="cpu", weights_only=True)
+    except pickle.UnpicklingError as e:
+        if not _refused_code(str(e)):
+            raise InputError("cannot read checkpoint: not a PyTorch checkpoint (.pth/.pt/.ckpt) nor a .safetensors "
+                             "file", path) from e
+        found = _REFUSED_GLOBAL.search(str(e))
+        what = f"the Python object {found.group(1) or found.group(2)}" if found else "Python code or objects"
+        raise InputError(
+            f"refusing to load this checkpoint: it holds {what}, which loading could run. Only tensors, "
+            "plain containers and the reference trainer's config are read; save the state_dict alone "
+            "(torch.save(ckpt['state_dict'], ...)) where you trust the file, or use a .safetensors file", path
+        ) from e
     except Exception as e:  # not a torch file at all
-        raise InputError(f"cannot read checkpoint ({type(e).__name__}: {e})", path) from e
-    try:
-        return torch.load(path, map_location="cpu", weights_only=False, pickle_module=_restricted_pickle)
-    except Exception as e:
-        raise InputError(f"cannot read checkpoint ({type(e).__name__}: {e})", path) from e
+        first = str(e).strip().splitlines()[0] if str(e).strip() else ""
+        raise InputError(f"cannot read checkpoint ({type(e).__name__}: {first[:200]})", path) from e
 
 
 # -------------------------------------------------------------------------------------- conversion

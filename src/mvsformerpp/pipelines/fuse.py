@@ -13,8 +13,8 @@ in-memory :func:`mvsformerpp.fusion.fuse_depth_maps` gives, in the same order.
 
 from __future__ import annotations
 
+import logging
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
@@ -29,6 +29,8 @@ from mvsformerpp.io.mvsnet import load_mvsnet_scene
 from mvsformerpp.io.pfm import pfm_shape, read_pfm
 from mvsformerpp.io.ply import PlyStreamWriter
 from mvsformerpp.io.scene import Scene
+
+log = logging.getLogger(__name__)
 
 
 def _confidence_path(folder: Path, stem: str) -> Path | None:
@@ -71,6 +73,11 @@ class DepthFolder:
         shape = pfm_shape(self.depth_path(i))
         if len(shape) != 2:
             raise FormatError("depth map must have one channel (Pf)", self.depth_path(i))
+        (h, w), view = shape, self.scene.views[i]
+        if abs(w * view.height - h * view.width) > max(w, h, view.width, view.height):  # > 1 px off the aspect
+            raise FormatError(f"depth map is {w}x{h}, which is not the shape of its {view.width}x{view.height} photo "
+                              "(depth maps may be smaller than the photos, with the same aspect ratio)",
+                              self.depth_path(i))
         return shape
 
     def read(self, i: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
@@ -150,11 +157,14 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
         for xyz, rgb in iter_fused_points(store, neighbors, config, progress=lambda r: bar.update(1)):
             ply.write(xyz, rgb)
     if ply.count == 0:
-        warnings.warn(
-            "fusion kept no point: the depth maps disagree everywhere or all confidences are below "
-            f"{config.conf_threshold} (re-run `mvsformerpp fuse {folder}` with a lower --conf, "
-            "--num-consistent 1 or --fusion dynamic); "
-            "wrote an empty point cloud", stacklevel=2)
+        from mvsformerpp.pipelines.empty_cloud import explain_empty_cloud
+
+        def count_points(cand: FusionConfig) -> int:
+            with torch.no_grad():
+                trial = scene_view_store(scene, depths.read, cache_bytes, device)
+                return sum(len(xyz) for xyz, _ in iter_fused_points(trial, neighbors, cand))
+
+        log.warning(explain_empty_cloud(depths, config, folder, out_ply, count_points))
     seconds = time.perf_counter() - t0
     if not quiet:
         print(f"{ply.count:,} points in {seconds:.1f} s -> {out_ply}")

@@ -24,6 +24,7 @@ from typing import Literal
 import torch
 
 from mvsformerpp.errors import FormatError, InputError, MVSFormerError
+from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
 from mvsformerpp.inference.output_folder import OutputFolder, disk_full_guard, scene_fingerprint, settings_hash
 from mvsformerpp.inference.resolution import available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.inference.runner import SceneInference
@@ -57,6 +58,8 @@ class ReconstructConfig:
     """Per-stage softmax temperatures at inference (spec section 7)."""
     depth_range: tuple[float, float] | None = None
     """Override of every view's depth range (scene units); None = from the input."""
+    depth_format: Literal["auto", "interval", "max"] = "auto"
+    """How a two-number MVSNet depth line is read: MIN INTERVAL, MIN MAX, or MAX when larger than MIN (auto)."""
     max_images: int | None = None
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
     fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
@@ -77,6 +80,11 @@ class ReconstructConfig:
             raise InputError(f"--memory-gb must be positive, got {self.memory_gb}")
         if self.cache_mb < 0:
             raise InputError(f"--cache-mb must be >= 0, got {self.cache_mb}")
+        if self.depth_range is not None and not 0 < self.depth_range[0] < self.depth_range[1]:
+            raise InputError(f"--depth-range {self.depth_range[0]:g} {self.depth_range[1]:g} must satisfy "
+                             "0 < min < max")
+        if self.depth_format not in ("auto", "interval", "max"):
+            raise InputError(f"--depth-format must be auto, interval or max, got {self.depth_format!r}")
         if len(self.temperatures) != 4:
             raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
 
@@ -91,8 +99,13 @@ class ReconstructConfig:
 # ---------------------------------------------------------------------------------------------- input
 
 
-def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False) -> Scene:
-    """Load INPUT as a Scene, running SfM (photos) or undistortion (distorted COLMAP) into ``out``."""
+def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False,
+               depth_range: tuple[float, float] | None = None, depth_format: str = "auto") -> Scene:
+    """Load INPUT as a Scene, running SfM (photos) or undistortion (distorted COLMAP) into ``out``.
+
+    ``depth_range`` replaces every view's range (the input's depth lines are then not read at all);
+    ``depth_format`` says how two-number MVSNet depth lines are read.
+    """
     from mvsformerpp.io import detect
 
     path = Path(path)
@@ -100,20 +113,50 @@ def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool
         raise InputError("no such file or folder", path)
     layout = detect.detect_layout(path)
     if layout == "images":
-        from mvsformerpp.pipelines.sfm import run_sfm
+        from mvsformerpp.pipelines.sfm import list_photos, run_sfm
 
-        dense = run_sfm(path, out / "sfm", quiet=quiet)
-        return detect.load_scene(dense)
+        photos = path if list_photos(path) or not (path / "images").is_dir() else path / "images"
+        dense = run_sfm(photos, out / "sfm", quiet=quiet)
+        return detect.load_scene(dense, depth_range=depth_range)
     if layout == "colmap" and _colmap_is_distorted(path):
         from mvsformerpp.io.colmap import undistort_colmap
 
         target = out / "undistorted"
         if not (target / "DONE").is_file():
             log.info("undistorting the COLMAP project into %s", target)
-            undistort_colmap(path, target)
+            _check_photo_sizes(path)
+            try:
+                undistort_colmap(path, target)
+            except MVSFormerError:
+                raise
+            except Exception as e:  # pycolmap reports bad input as RuntimeError/ValueError
+                raise InputError(f"COLMAP could not undistort this project ({_first_line(e)})", path) from e
             (target / "DONE").write_text("undistorted\n")
-        return detect.load_scene(target)
-    return detect.load_scene(path)
+        return detect.load_scene(target, depth_range=depth_range)
+    return detect.load_scene(path, depth_range=depth_range, depth_format=depth_format)
+
+
+def _first_line(e: BaseException) -> str:
+    text = str(e).strip()
+    return (text.splitlines()[-1] if text else type(e).__name__)[:300]
+
+
+def _check_photo_sizes(project: Path) -> None:
+    """Every photo of a distorted COLMAP model has its camera's size (undistortion needs the originals)."""
+    from mvsformerpp.io.colmap import find_colmap_model, read_model
+    from mvsformerpp.io.images import image_size
+
+    model_dir, image_dir = find_colmap_model(project)
+    if image_dir is None:
+        return
+    model = read_model(model_dir)
+    for im in model.images.values():
+        cam, path = model.cameras[im.camera_id], image_dir / im.name
+        if path.is_file() and image_size(path) != (cam.width, cam.height):
+            w, h = image_size(path)
+            raise InputError(f"photo is {w}x{h} but its camera in {model_dir} is {cam.width}x{cam.height}: the model "
+                             "and the photos do not belong together (undistorted photos go with the undistorted "
+                             "model, e.g. dense/images with dense/sparse)", path)
 
 
 def _colmap_is_distorted(project: Path) -> bool:
@@ -151,6 +194,33 @@ def prepare_scene(scene: Scene, config: ReconstructConfig) -> Scene:
     out.validate(require_depth_range=True)
     _check_images(out)
     return out
+
+
+def range_coverage(lo: float, hi: float, own_min: float, own_max: float) -> float:
+    """Share of a view's own depth range [own_min, own_max] that [lo, hi] covers (0..1)."""
+    return max(0.0, min(hi, own_max) - max(lo, own_min)) / (own_max - own_min)
+
+
+def warn_if_range_misses_scene(input_path: str | Path, out: Path, config: ReconstructConfig) -> None:
+    """Warn when ``--depth-range`` leaves out most of the depths the input itself gives its views.
+
+    The input's own per-view range (from the sparse points a view sees, or its cam file's depth line)
+    spans where the scene is; a range covering less than half of it for most views is almost always
+    a unit mix-up (millimetres vs metres) and gives empty depth maps.
+    """
+    try:
+        own = load_input(input_path, out, quiet=True, depth_format=config.depth_format)
+    except MVSFormerError:
+        return  # the input has no usable ranges of its own: nothing to compare with
+    lo, hi = config.depth_range
+    ranged = [v for v in own.views if v.depth_min is not None and v.depth_max is not None]
+    missed = [v for v in ranged if range_coverage(lo, hi, v.depth_min, v.depth_max) < 0.5]
+    if ranged and len(missed) > len(ranged) / 2:
+        v = missed[0]
+        log.warning("--depth-range %g %g covers less than half of the depths the input gives %d of %d views "
+                    "(e.g. %s: %.4g .. %.4g from its %s); check the units, or leave --depth-range out",
+                    lo, hi, len(missed), len(ranged), v.name, v.depth_min, v.depth_max,
+                    "sparse points" if own.source_format == "colmap" else "depth line")
 
 
 def connected_subset(scene: Scene, n: int) -> list[int]:
@@ -217,17 +287,35 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     """Reconstruct INPUT into ``out_dir``; return the summary (also written to ``summary.json``).
 
     ``model`` replaces the preset's network (already on the device), e.g. for tests or benchmarks.
-    Finished views are skipped on a repeated call with the same settings.
+    Finished views are skipped on a repeated call with the same settings. ``out_dir`` must not be,
+    contain or lie inside INPUT, nor hold files of anything but an earlier ``reconstruct``; one run
+    at a time holds it (:mod:`mvsformerpp.utils.output_guard`).
     """
+    from mvsformerpp.utils.output_guard import claim_output_folder
+
+    if not Path(input_path).exists():
+        raise InputError("no such file or folder", input_path)
+    if config.checkpoint is not None and model is None and not Path(config.checkpoint).is_file():
+        raise InputError("checkpoint file not found", config.checkpoint)
+    _device(config.device)
+    with claim_output_folder(out_dir, [input_path], "reconstruct"):
+        return _reconstruct(input_path, out_dir, config, quiet, model)
+
+
+def _reconstruct(input_path: str | Path, out_dir: str | Path, config: ReconstructConfig, quiet: bool,
+                 model: torch.nn.Module | None) -> dict:
     from tqdm import tqdm
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     folder = OutputFolder(out_dir)
-    full = load_input(input_path, folder.root, quiet=quiet)
+    full = load_input(input_path, folder.root, quiet=quiet, depth_range=config.depth_range,
+                      depth_format=config.depth_format)
     fingerprint = scene_fingerprint(full)
     folder.check_scene(fingerprint)
     scene = prepare_scene(full, config)
+    if config.depth_range is not None:
+        warn_if_range_misses_scene(input_path, folder.root, config)
     timings["input_s"] = time.perf_counter() - t0
 
     device = _device(config.device)
@@ -236,7 +324,8 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
-    state = settings_hash({**config.result_settings(), **resolved})
+    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved},
+                             weights_identity(config.checkpoint) if model is None else None)
 
     # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
     from mvsformerpp.io.mvsnet import write_mvsnet_scene
@@ -250,7 +339,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
                                       "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
                                       "source_format": full.source_format, "num_views_in_input": len(full)})
 
-    todo = [i for i in range(len(scene)) if not folder.view_done(i, state)]
+    todo = [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
     t1 = time.perf_counter()
     cache_stats = None
     if todo:
@@ -264,7 +353,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
                                 cache_bytes=config.cache_mb << 20)
         for i in tqdm(todo, desc="Depth maps", unit="view", disable=quiet):
             res = runner.infer(i)
-            folder.write_view(i, res.depth, res.confidence, state)
+            folder.write_view(i, res.depth, res.confidence, keys[i])
         cache_stats = runner.cache.stats()
     timings["depth_s"] = time.perf_counter() - t1
     timings["views_computed"] = len(todo)
@@ -273,7 +362,7 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     ply = folder.root / "fused.ply"
     points = None
     if config.fusion != "none":
-        fusion_state = settings_hash({"depth": state, "fusion": config.fusion, "n": len(scene)})
+        fusion_state = settings_hash({"depth": keys, "fusion": config.fusion})
         if not folder.fusion_done(fusion_state):
             with disk_full_guard(ply):
                 _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb)
@@ -299,13 +388,9 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
 
 
 def _device(name: str) -> torch.device:
-    try:
-        device = torch.device(name)
-    except RuntimeError as e:
-        raise InputError(f"--device {name!r} is not a torch device (use cpu, cuda or cuda:N)") from e
-    if device.type == "cuda" and not torch.cuda.is_available():
-        raise InputError(f"--device {name}: CUDA is not available on this machine; use --device cpu")
-    return device
+    from mvsformerpp.utils.device import parse_device
+
+    return parse_device(name)
 
 
 def _fusion_config(name: str):

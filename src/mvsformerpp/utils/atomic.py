@@ -1,6 +1,8 @@
 """Write files atomically: to a temporary name in the same folder, then rename.
 
-An interrupted run never leaves a half-written file under the final name.
+An interrupted run never leaves a half-written file under the final name. The file gets the
+permissions a plain ``open`` would give it (0666 less the umask, 0644 by default), not mkstemp's 0600.
+A run killed mid-write leaves ``.NAME.XXXXXXXX.tmp`` behind; :mod:`.output_guard` removes those.
 """
 
 from __future__ import annotations
@@ -20,6 +22,7 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO]:
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
     try:
+        os.fchmod(fd, 0o666 & ~current_umask())
         with os.fdopen(fd, mode) as f:
             yield f
             f.flush()
@@ -29,6 +32,20 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO]:
         with contextlib.suppress(FileNotFoundError):
             os.unlink(tmp)
         raise
+
+
+def current_umask() -> int:
+    """The process's umask (read without changing it where /proc allows)."""
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("Umask:"):
+                    return int(line.split()[1], 8)
+    except (OSError, ValueError):
+        pass
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
 
 
 def atomic_write_bytes(path: str | Path, data: bytes) -> None:

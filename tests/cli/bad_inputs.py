@@ -1,0 +1,414 @@
+"""Bad inputs and the one-line message each gets: the cases behind ``docs/bad-inputs.md``.
+
+Every case builds its files in an empty folder, runs the ``mvsformerpp`` command in process and
+records the exit code and what it printed on stderr. ``test_bad_inputs.py`` checks each case (non-zero
+exit, exactly one ``error:`` line, the expected words, no traceback) and that the table in
+``docs/bad-inputs.md`` shows exactly the message the command prints today. Regenerate the table with
+
+    python tests/cli/bad_inputs.py --write docs/bad-inputs.md
+"""
+
+from __future__ import annotations
+
+import contextlib
+import errno
+import io
+import shutil
+import sys
+import tempfile
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+DOC = ROOT / "docs" / "bad-inputs.md"
+
+
+@dataclass(frozen=True)
+class Case:
+    id: str
+    what: str
+    """The bad input, in words."""
+    build: Callable[[Path], list[str]]
+    """Creates the files under the given folder and returns the command's arguments (after ``mvsformerpp``)."""
+    expect: str
+    """Words the message must contain (a regular expression)."""
+    patch: Callable[[object], None] | None = None
+    """Applies a fault (e.g. a full disk) with a pytest MonkeyPatch."""
+    needs_no_cuda: bool = False
+
+
+# --------------------------------------------------------------------------------------- fixtures
+_CACHE: dict[str, Path] = {}
+
+
+def _cached(name: str, make: Callable[[Path], None]) -> Path:
+    if name not in _CACHE:
+        root = Path(tempfile.mkdtemp(prefix="mvsformerpp-bad-inputs-"))
+        make(root / name)
+        _CACHE[name] = root / name
+    return _CACHE[name]
+
+
+def scene(d: Path, name: str = "scene") -> Path:
+    """A small MVSNet scene (synthetic, 3 views of 96x64) copied to ``d/name``."""
+    from mvsformerpp.synth import generate_scene
+
+    src = _cached("mvs", lambda p: generate_scene(p, seed=2, num_views=3, height=64, width=96, gt_points=500))
+    return Path(shutil.copytree(src, d / name))
+
+
+def fused_folder(d: Path) -> Path:
+    """A scene folder with depth_est/ and confidence/ (the ground truth as depth, confidence 0.9)."""
+    from mvsformerpp.io.pfm import read_pfm, write_pfm
+
+    s = scene(d)
+    for p in sorted((s / "depth_gt").glob("*.pfm")):
+        depth = read_pfm(p)
+        write_pfm(s / "depth_est" / p.name, depth)
+        write_pfm(s / "confidence" / p.name, np.full_like(depth, 0.9))
+    return s
+
+
+def cloud(path: Path, n: int = 200, seed: int = 0) -> Path:
+    from mvsformerpp.io.ply import write_ply
+
+    xyz = np.random.default_rng(seed).uniform(0, 1, (n, 3)).astype(np.float32)
+    write_ply(path, xyz)
+    return path
+
+
+def colmap_project(d: Path, points: bool = True, empty_points: bool = False) -> Path:
+    sys.path.insert(0, str(ROOT / "tests" / "io"))
+    from colmap_synth import synthetic_model, write_photos
+
+    from mvsformerpp.io.colmap_model import write_model
+
+    model = synthetic_model(n_views=3, width=64, height=48)
+    project = d / "colmap"
+    write_model(model, project / "sparse" / "0", ext=".txt")
+    write_photos(model, project / "images")
+    pts = project / "sparse" / "0" / "points3D.txt"
+    if not points:
+        pts.unlink()
+    elif empty_points:
+        pts.write_text("# 3D point list with one line of data per point:\n# Number of points: 0\n")
+    return project
+
+
+def edit(path: Path, old: str, new: str) -> None:
+    text = path.read_text()
+    assert old in text, (path, old)
+    path.write_text(text.replace(old, new, 1))
+
+
+def recon(d: Path, *extra: str, src: Path | None = None, out: Path | None = None) -> list[str]:
+    src = src if src is not None else scene(d)
+    return ["reconstruct", str(src), "-o", str(out if out is not None else d / "out"), "--preset", "lite",
+            "--quiet", *extra]
+
+
+def _full_disk(monkeypatch, module: str, name: str) -> None:
+    import importlib
+
+    def full(*a, **kw):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    owner = importlib.import_module(module)
+    *path, name = name.split(".")
+    for attr in path:  # a method: Class.method
+        owner = getattr(owner, attr)
+    monkeypatch.setattr(owner, name, full)
+
+
+# ------------------------------------------------------------------------------------------ cases
+def _mismatched_image(d: Path) -> list[str]:
+    from PIL import Image
+
+    s = scene(d)
+    Image.new("RGB", (100, 100)).save(s / "images" / "00000001.png")
+    return recon(d, src=s)
+
+
+def _duplicate_sources(d: Path) -> list[str]:
+    s = scene(d)
+    (s / "pair.txt").write_text("3\n0\n2 1 1.0 1 0.5\n1\n2 0 1.0 2 0.5\n2\n2 0 1.0 1 0.5\n")
+    return recon(d, src=s)
+
+
+def _wrong_size_depth(d: Path) -> list[str]:
+    from mvsformerpp.io.pfm import write_pfm
+
+    s = fused_folder(d)
+    write_pfm(s / "depth_est" / "00000001.pfm", np.ones((50, 50), np.float32))
+    return ["fuse", str(s), "--quiet"]
+
+
+def _wrong_size_confidence(d: Path) -> list[str]:
+    from mvsformerpp.io.pfm import write_pfm
+
+    s = fused_folder(d)
+    write_pfm(s / "confidence" / "00000001.pfm", np.ones((32, 48), np.float32))
+    return ["fuse", str(s), "--quiet"]
+
+
+def _singular_alignment(d: Path) -> list[str]:
+    (d / "T.txt").write_text("1 0 0 0\n0 1 0 0\n0 0 0 0\n0 0 0 1\n")
+    return ["evaluate", "tnt", str(cloud(d / "p.ply")), str(cloud(d / "g.ply", seed=1)), "--threshold", "0.1",
+            "--alignment", str(d / "T.txt")]
+
+
+def _crafted_checkpoint(d: Path) -> list[str]:
+    import pickle
+
+    class Call:
+        def __reduce__(self):
+            return shutil.rmtree, (str(d / "scene"),)
+
+    (d / "evil.pth").write_bytes(pickle.dumps(Call(), protocol=2))
+    return recon(d, "--checkpoint", str(d / "evil.pth"))
+
+
+def _depth_lines(d: Path, line: str) -> Path:
+    s = scene(d)
+    for p in (s / "cams").glob("*_cam.txt"):
+        lines = p.read_text().strip().splitlines()
+        lines[-1] = line
+        p.write_text("\n".join(lines) + "\n")
+    return s
+
+
+def _pair(d: Path, text: str) -> Path:
+    s = scene(d)
+    (s / "pair.txt").write_text(text)
+    return s
+
+
+def _cam_token(d: Path, line: int, token: str) -> Path:
+    """Replace the first number on ``line`` of view 0's cam file."""
+    s = scene(d)
+    p = s / "cams" / "00000000_cam.txt"
+    lines = p.read_text().splitlines()
+    lines[line] = " ".join([token] + lines[line].split()[1:])
+    p.write_text("\n".join(lines) + "\n")
+    return s
+
+
+def _non_empty_synth(d: Path) -> list[str]:
+    (d / "mine").mkdir()
+    (d / "mine" / "notes.txt").write_text("keep")
+    return ["synth", str(d / "mine")]
+
+
+def _file(d: Path, name: str, data: bytes = b"x") -> Path:
+    (d / name).write_bytes(data)
+    return d / name
+
+
+CASES: list[Case] = [
+    # reconstruct: the input
+    Case("recon-missing-input", "INPUT does not exist", lambda d: recon(d, src=d / "nowhere"), "no such file"),
+    Case("recon-empty-folder", "INPUT is an empty folder", lambda d: recon(d, src=(d / "e").mkdir() or d / "e"),
+         "no scene found"),
+    Case("recon-no-cams", "an MVSNet folder whose cams/ is missing",
+         lambda d: recon(d, src=(lambda s: shutil.rmtree(s / "cams") or s)(scene(d))), "cams"),
+    Case("recon-colmap-no-points3d", "a COLMAP model without points3D.txt",
+         lambda d: recon(d, src=colmap_project(d, points=False)), "points3D"),
+    Case("recon-colmap-empty-points3d", "a COLMAP model whose points3D.txt holds no point",
+         lambda d: recon(d, src=colmap_project(d, empty_points=True)), "no 3-D point|depth range"),
+    Case("recon-missing-image", "a camera whose photo is missing",
+         lambda d: recon(d, src=(lambda s: (s / "images" / "00000001.png").unlink() or s)(scene(d))), "no image"),
+    Case("recon-corrupt-image", "a photo that is not an image",
+         lambda d: recon(d, src=(lambda s: _file(s / "images", "00000001.png", b"junk") and s)(scene(d))),
+         "image"),
+    Case("recon-image-camera-mismatch", "a 100x100 photo for a 96x64 camera", _mismatched_image, "100x100"),
+    Case("recon-duplicate-sources", "pair.txt lists a source view twice", _duplicate_sources, "twice"),
+    Case("recon-pair-out-of-range", "pair.txt names a view that does not exist",
+         lambda d: recon(d, src=_pair(d, "3\n0\n2 7 1.0 1 0.5\n1\n2 0 1.0 2 0.5\n2\n2 0 1.0 1 0.5\n")), "7"),
+    Case("recon-cam-nan", "a cam file with a NaN in its rotation",
+         lambda d: recon(d, src=_cam_token(d, 1, "nan")), "non-finite"),
+    Case("recon-depth-line-zero-interval", "a depth line `MIN 0` (zero interval)",
+         lambda d: recon(d, src=_depth_lines(d, "5 0")), "depth range"),
+    Case("recon-depth-line-negative", "a depth line with a negative MIN",
+         lambda d: recon(d, src=_depth_lines(d, "-5 0.1 192 14")), "depth"),
+    Case("recon-one-view", "--max-images 1", lambda d: recon(d, "--max-images", "1"), "at least 2"),
+    # reconstruct: the output folder
+    Case("recon-out-is-input", "-o is the input folder", lambda d: recon(d, out=d / "scene"), "is the input"),
+    Case("recon-out-inside-input", "-o lies inside the input folder", lambda d: recon(d, out=d / "scene" / "o"),
+         "inside the input"),
+    Case("recon-out-contains-input", "-o contains the input folder", lambda d: recon(d, out=d), "contains the input"),
+    Case("recon-out-other-scene", "-o is another scene's folder",
+         lambda d: recon(d, out=scene(d, "other")), "not written by mvsformerpp reconstruct"),
+    Case("recon-out-under-file", "-o lies under a file", lambda d: recon(d, out=_file(d, "f") / "out"),
+         "cannot create the output folder"),
+    Case("recon-out-read-only", "-o on a read-only file system", lambda d: recon(d, out=d / "ro"),
+         "Read-only file system",
+         patch=lambda mp: mp.setattr(Path, "mkdir", lambda *a, **k: (_ for _ in ()).throw(
+             OSError(errno.EROFS, "Read-only file system")))),
+    # reconstruct: settings
+    Case("recon-views-1", "--views 1", lambda d: recon(d, "--views", "1"), "--views"),
+    Case("recon-max-size-10", "--max-size 10", lambda d: recon(d, "--max-size", "10"), "--max-size"),
+    Case("recon-depth-range-empty", "--depth-range 0.6 0.5", lambda d: recon(d, "--depth-range", "0.6", "0.5"),
+         "0 < min < max"),
+    Case("recon-depth-range-negative", "--depth-range -1 2", lambda d: recon(d, "--depth-range", "-1", "2"),
+         "0 < min < max"),
+    Case("recon-cache-negative", "--cache-mb -1", lambda d: recon(d, "--cache-mb", "-1"), "--cache-mb"),
+    Case("recon-memory-zero", "--memory-gb 0", lambda d: recon(d, "--memory-gb", "0"), "--memory-gb"),
+    Case("recon-device-cuda", "--device cuda on a machine without CUDA", lambda d: recon(d, "--device", "cuda"),
+         "CUDA is not available", needs_no_cuda=True),
+    Case("recon-device-meta", "--device meta", lambda d: recon(d, "--device", "meta"), "meta"),
+    Case("recon-device-unknown", "--device banana", lambda d: recon(d, "--device", "banana"), "banana"),
+    Case("recon-checkpoint-missing", "--checkpoint that does not exist",
+         lambda d: recon(d, "--checkpoint", str(d / "none.pth")), "not found"),
+    Case("recon-checkpoint-junk", "--checkpoint that is not a checkpoint",
+         lambda d: recon(d, "--checkpoint", str(_file(d, "junk.pth", b"not a checkpoint"))), "cannot read"),
+    Case("recon-checkpoint-code", "--checkpoint holding a pickled function call", _crafted_checkpoint,
+         "refusing to load"),
+    # fuse
+    Case("fuse-no-depth", "a scene folder without depth maps", lambda d: ["fuse", str(scene(d)), "--quiet"],
+         "no depth map"),
+    Case("fuse-wrong-size-depth", "a 50x50 depth map for a 96x64 view", _wrong_size_depth, "depth map"),
+    Case("fuse-wrong-size-confidence", "a confidence map of another size than its depth map",
+         _wrong_size_confidence, "confidence map"),
+    Case("fuse-conf-nan", "--conf nan", lambda d: ["fuse", str(fused_folder(d)), "--conf", "nan"], "--conf"),
+    Case("fuse-disp-negative", "--disp -1", lambda d: ["fuse", str(fused_folder(d)), "--disp", "-1"], "--disp"),
+    Case("fuse-num-consistent-negative", "--num-consistent -1",
+         lambda d: ["fuse", str(fused_folder(d)), "--num-consistent", "-1"], "--num-consistent"),
+    Case("fuse-num-src-zero", "--num-src-views 0", lambda d: ["fuse", str(fused_folder(d)), "--num-src-views", "0"],
+         "--num-src-views"),
+    Case("fuse-device-cuda", "fuse --device cuda without CUDA",
+         lambda d: ["fuse", str(fused_folder(d)), "--device", "cuda"], "CUDA is not available", needs_no_cuda=True),
+    Case("fuse-device-meta", "fuse --device meta", lambda d: ["fuse", str(fused_folder(d)), "--device", "meta"],
+         "meta"),
+    Case("fuse-disk-full", "the disk fills up while fuse writes the cloud",
+         lambda d: ["fuse", str(fused_folder(d)), "--quiet"], "No space left",
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.io.ply", "PlyStreamWriter.write")),
+    Case("fuse-output-is-photo", "fuse -o pointing at an input photo",
+         lambda d: (lambda s: ["fuse", str(s), "-o", str(s / "images" / "00000000.png"), "--quiet"])(fused_folder(d)),
+         "not a PLY"),
+    # evaluate
+    Case("eval-cloud-threshold-zero", "evaluate cloud --threshold 0",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "0"],
+         "--threshold"),
+    Case("eval-cloud-threshold-negative", "evaluate cloud --threshold -1",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "-1"],
+         "--threshold"),
+    Case("eval-cloud-threshold-nan", "evaluate cloud --threshold nan",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "nan"],
+         "--threshold"),
+    Case("eval-cloud-missing", "evaluate cloud with a missing PLY",
+         lambda d: ["evaluate", "cloud", str(d / "none.ply"), str(cloud(d / "g.ply")), "--threshold", "1"],
+         "none.ply"),
+    Case("eval-cloud-not-ply", "evaluate cloud with a file that is not a PLY",
+         lambda d: ["evaluate", "cloud", str(_file(d, "p.ply", b"hello")), str(cloud(d / "g.ply")), "--threshold",
+                    "1"], "PLY"),
+    Case("eval-cloud-error-ply-disk-full", "the disk fills up while evaluate writes --error-ply",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "0.1",
+                    "--error-ply", str(d / "err.ply")], "No space left",
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.evaluation.visualize", "write_error_ply")),
+    Case("eval-depth-threshold-zero", "evaluate depth --thresholds 0",
+         lambda d: ["evaluate", "depth", str(d), str(d), "--thresholds", "0"], "--thresholds"),
+    Case("eval-depth-interval-negative", "evaluate depth --interval -1",
+         lambda d: ["evaluate", "depth", str(d), str(d), "--interval", "-1"], "--interval"),
+    Case("eval-depth-inlier-ratio", "evaluate depth --inlier-ratio 1",
+         lambda d: ["evaluate", "depth", str(d), str(d), "--inlier-ratio", "1"], "--inlier-ratio"),
+    Case("eval-eth3d-tolerance-zero", "evaluate eth3d --tolerances 0",
+         lambda d: ["evaluate", "eth3d", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--tolerances", "0"],
+         "--tolerances"),
+    Case("eval-tnt-singular-alignment", "evaluate tnt with a singular alignment matrix", _singular_alignment,
+         "singular|invertible"),
+    # synth and info
+    Case("synth-non-empty", "synth into a folder holding other files", _non_empty_synth, "not empty"),
+    Case("synth-huge", "synth --height 100000 --width 100000",
+         lambda d: ["synth", str(d / "s"), "--height", "100000", "--width", "100000"], "--height"),
+    Case("synth-views-1", "synth --views 1", lambda d: ["synth", str(d / "s"), "--views", "1"], "--views"),
+    Case("info-missing", "info on a path that does not exist", lambda d: ["info", str(d / "nowhere")],
+         "no such file"),
+    Case("info-depth-range-reversed", "info --depth-range 5 1",
+         lambda d: ["info", str(scene(d)), "--depth-range", "5", "1"], "0 < min < max"),
+]
+
+
+# ------------------------------------------------------------------------------------------ running
+def run_case(case: Case, folder: Path) -> tuple[int | None, str, str]:
+    """(exit code or None if it raised, stderr, the traceback if one escaped) for one case."""
+    import traceback
+
+    import pytest
+
+    from mvsformerpp.cli import main
+
+    argv = case.build(folder)
+    err, out = io.StringIO(), io.StringIO()
+    mp = pytest.MonkeyPatch()
+    try:
+        if case.patch is not None:
+            case.patch(mp)
+        with contextlib.redirect_stderr(err), contextlib.redirect_stdout(out):
+            try:
+                rc = main(argv)
+            except SystemExit as e:
+                rc = e.code if isinstance(e.code, int) else 1
+            except BaseException:
+                return None, err.getvalue(), traceback.format_exc()
+    finally:
+        mp.undo()
+    return rc, err.getvalue(), ""
+
+
+def normalise(message: str, folder: Path) -> str:
+    """The message with the case's folder shown as ``DIR``."""
+    for f in {str(folder.resolve()), str(folder)}:
+        message = message.replace(f, "DIR")
+    return message.strip()
+
+
+def row(case: Case, message: str) -> str:
+    cell = message.replace("|", "\\|")
+    return f"| `{case.id}` | {case.what} | {cell} |"
+
+
+HEADER = """# Bad inputs and their messages
+
+Every bad input below was run by the test suite (`tests/cli/test_bad_inputs.py`): each ends with exit
+code 2 and exactly this one line on stderr, nothing else (no traceback), and no file of the user's is
+changed. `DIR` stands for the folder the test ran in. The table is generated from the tests
+(`python tests/cli/bad_inputs.py --write docs/bad-inputs.md`), and a test fails when a message here
+differs from what the command prints.
+
+| case | bad input | message |
+|---|---|---|
+"""
+
+
+def render(rows: list[str]) -> str:
+    return HEADER + "\n".join(rows) + "\n"
+
+
+def main(argv: list[str]) -> int:
+    import torch
+
+    rows = []
+    for case in CASES:
+        with tempfile.TemporaryDirectory() as tmp:
+            folder = Path(tmp)
+            if case.needs_no_cuda and torch.cuda.is_available():
+                print(f"skipping {case.id}: this machine has CUDA", file=sys.stderr)
+                continue
+            rc, err, tb = run_case(case, folder)
+            if tb or rc == 0:
+                print(f"{case.id}: exit {rc}\n{tb}{err}", file=sys.stderr)
+            rows.append(row(case, normalise(err, folder)))
+    text = render(rows)
+    if len(argv) == 2 and argv[0] == "--write":
+        Path(argv[1]).parent.mkdir(parents=True, exist_ok=True)
+        Path(argv[1]).write_text(text)
+    else:
+        print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main(sys.argv[1:]))

@@ -1,0 +1,85 @@
+"""Resume reuses a depth map only while everything it depends on is unchanged (per view)."""
+
+import sys
+from pathlib import Path
+
+import pytest
+
+from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
+from mvsformerpp.io.detect import load_scene
+from mvsformerpp.io.mvsnet import read_cam, write_cam
+from mvsformerpp.io.pair import read_pair, write_pair
+from mvsformerpp.pipelines.reconstruct import reconstruct
+
+sys.path.insert(0, str(Path(__file__).parent))
+from test_reconstruct import FAST, fake_model  # noqa: E402
+
+
+def scene(path, seed=3):
+    from mvsformerpp.synth import generate_scene
+
+    return generate_scene(path, seed=seed, num_views=4, height=64, width=96, gt_points=1000)
+
+
+def run(src, out):
+    """Reconstruct and return the set of views whose depth map was (re)written."""
+    before = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")} if out.is_dir() else {}
+    model = fake_model()
+    reconstruct(src, out, FAST, quiet=True, model=model)
+    after = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")}
+    changed = {int(name[:8]) for name, ino in after.items() if before.get(name) != ino}
+    assert model.forwards == len(changed)
+    return changed
+
+
+def test_a_changed_depth_line_recomputes_that_view_only(tmp_path):
+    src, out = scene(tmp_path / "s"), tmp_path / "out"
+    assert run(src, out) == {0, 1, 2, 3}
+    assert run(src, out) == set()
+    cam = read_cam(src / "cams" / "00000002_cam.txt")
+    cam.depth_max *= 1.5
+    write_cam(src / "cams" / "00000002_cam.txt", cam)
+    assert run(src, out) == {2}
+
+
+def test_a_changed_pair_line_recomputes_that_view_only(tmp_path):
+    src, out = scene(tmp_path / "s"), tmp_path / "out"
+    run(src, out)
+    pairs = read_pair(src / "pair.txt")
+    pairs[1] = pairs[1][::-1]  # other source views for view 1 (FAST uses the best two)
+    write_pair(src / "pair.txt", pairs)
+    assert run(src, out) == {1}
+
+
+def test_a_replaced_photo_recomputes_the_views_that_see_it(tmp_path):
+    src, out = scene(tmp_path / "s"), tmp_path / "out"
+    run(src, out)
+    users = {i for i in range(4) if i == 3 or 3 in [j for j, _ in read_pair(src / "pair.txt")[i][:2]]}
+    other = scene(tmp_path / "o", seed=4)
+    (src / "images" / "00000003.png").write_bytes((other / "images" / "00000003.png").read_bytes())
+    assert run(src, out) == users
+
+
+def test_another_scene_never_reuses_maps_even_without_config_json(tmp_path):
+    out = tmp_path / "out"
+    run(scene(tmp_path / "a", seed=3), out)
+    (out / "config.json").unlink()
+    assert run(scene(tmp_path / "b", seed=5), out) == {0, 1, 2, 3}
+
+
+def test_weights_file_identity_changes_every_key(tmp_path):
+    s = load_scene(scene(tmp_path / "s"))
+    w = tmp_path / "w.pth"
+    w.write_bytes(b"1")
+    a = view_fingerprints(s, 3, {"x": 1}, weights_identity(w))
+    w.write_bytes(b"22")
+    b = view_fingerprints(s, 3, {"x": 1}, weights_identity(w))
+    assert all(x != y for x, y in zip(a, b))
+    assert view_fingerprints(s, 3, {"x": 1}, weights_identity(w)) == b
+    assert all(x != y for x, y in zip(b, view_fingerprints(s, 3, {"x": 2}, weights_identity(w))))
+
+
+@pytest.mark.parametrize("num_views", [2, 3])
+def test_keys_are_distinct_per_view(tmp_path, num_views):
+    s = load_scene(scene(tmp_path / "s"))
+    assert len(set(view_fingerprints(s, num_views, {}, None))) == 4
