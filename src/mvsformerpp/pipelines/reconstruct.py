@@ -53,7 +53,12 @@ class ReconstructConfig:
     num_views: int = 5
     """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
     num_depth: int = 192
-    """Depth-hypothesis count of the input range (only its ends are used by the cascade)."""
+    """Depth-plane count of the input range, written to the output cams (the cascade uses only the ends
+    of the range; a cam file's MIN INTERVAL line spans ``num_depth - 1`` intervals when it states no count)."""
+    interval_scale: float = 1.0
+    """Widen (or narrow) each view's depth range from its minimum by this factor: the reference's
+    ``interval_scale`` for ranges given as MIN INTERVAL (DTU: 1.06, so 425 + 191 x 2.5 x 1.06 mm).
+    Not applied to an explicit ``depth_range``."""
     temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0)
     """Per-stage softmax temperatures at inference (spec section 7)."""
     depth_range: tuple[float, float] | None = None
@@ -62,8 +67,9 @@ class ReconstructConfig:
     """How a two-number MVSNet depth line is read: MIN INTERVAL, MIN MAX, or MAX when larger than MIN (auto)."""
     max_images: int | None = None
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
-    fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
-    """Fusion filter (``mvsformerpp.fusion``); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
+    fusion: Literal["normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced", "none"] = "normal"
+    """Fusion preset (``mvsformerpp.fusion.PRESETS``; ``dtu``, ``tnt_intermediate`` and ``tnt_advanced`` are
+    the reference's settings); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
     cache_mb: int = 2048
     """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
     seed: int = 0
@@ -85,6 +91,8 @@ class ReconstructConfig:
                              "0 < min < max")
         if self.depth_format not in ("auto", "interval", "max"):
             raise InputError(f"--depth-format must be auto, interval or max, got {self.depth_format!r}")
+        if not self.interval_scale > 0:
+            raise InputError(f"--interval-scale must be positive, got {self.interval_scale}")
         if len(self.temperatures) != 4:
             raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
 
@@ -100,11 +108,13 @@ class ReconstructConfig:
 
 
 def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False,
-               depth_range: tuple[float, float] | None = None, depth_format: str = "auto") -> Scene:
+               depth_range: tuple[float, float] | None = None, depth_format: str = "auto",
+               num_depth: int = 192) -> Scene:
     """Load INPUT as a Scene, running SfM (photos) or undistortion (distorted COLMAP) into ``out``.
 
     ``depth_range`` replaces every view's range (the input's depth lines are then not read at all);
-    ``depth_format`` says how two-number MVSNet depth lines are read.
+    ``depth_format`` says how two-number MVSNet depth lines are read, ``num_depth`` how many planes a
+    MIN INTERVAL line spans when it states no count.
     """
     from mvsformerpp.io import detect
 
@@ -133,7 +143,7 @@ def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool
                 raise InputError(f"COLMAP could not undistort this project ({_first_line(e)})", path) from e
             (target / "DONE").write_text("undistorted\n")
         return detect.load_scene(target, depth_range=depth_range)
-    return detect.load_scene(path, depth_range=depth_range, depth_format=depth_format)
+    return detect.load_scene(path, depth_range=depth_range, depth_format=depth_format, num_depth=num_depth)
 
 
 def _first_line(e: BaseException) -> str:
@@ -183,6 +193,9 @@ def prepare_scene(scene: Scene, config: ReconstructConfig) -> Scene:
     if config.depth_range is not None:
         lo, hi = config.depth_range
         views = [dataclasses.replace(v, depth_min=float(lo), depth_max=float(hi)) for v in views]
+    elif config.interval_scale != 1.0:
+        views = [v if v.depth_min is None or v.depth_max is None else dataclasses.replace(
+            v, depth_max=v.depth_min + (v.depth_max - v.depth_min) * config.interval_scale) for v in views]
     lonely = [v.name for v in views if not v.neighbors]
     if lonely:
         raise InputError(
@@ -310,7 +323,7 @@ def _reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruc
     t0 = time.perf_counter()
     folder = OutputFolder(out_dir)
     full = load_input(input_path, folder.root, quiet=quiet, depth_range=config.depth_range,
-                      depth_format=config.depth_format)
+                      depth_format=config.depth_format, num_depth=config.num_depth)
     fingerprint = scene_fingerprint(full)
     folder.check_scene(fingerprint)
     scene = prepare_scene(full, config)
@@ -394,11 +407,10 @@ def _device(name: str) -> torch.device:
 
 
 def _fusion_config(name: str):
-    """The named fusion configuration of :mod:`mvsformerpp.fusion` (the name itself if it has no registry)."""
-    from mvsformerpp import fusion
+    """The named fusion preset of :mod:`mvsformerpp.fusion`."""
+    from mvsformerpp.fusion import get_config
 
-    get = getattr(fusion, "get_config", None)
-    return get(name) if callable(get) else name
+    return get_config(name)
 
 
 def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None) -> None:
