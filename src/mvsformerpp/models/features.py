@@ -22,6 +22,8 @@ class ImageFeatures:
 
     vit_taps: 3 tensors [N, h*w, C_vit]; vit_hw: the DINOv2 token grid (h, w);
     fpn: encoder outputs (conv01 [N,8,H,W], conv11 [N,16,H/2,W/2], conv21 [N,32,H/4,W/4], conv31 [N,64,H/8,W/8]).
+    A dataclass of tensors: the feature cache concatenates and sizes it generically (``tree_cat``,
+    ``tree_nbytes``).
     """
 
     vit_taps: list[torch.Tensor]
@@ -31,26 +33,9 @@ class ImageFeatures:
     def __len__(self) -> int:
         return self.fpn[0].shape[0]
 
-    def index(self, idx) -> ImageFeatures:
-        """Select images (a list/tensor of indices or a slice)."""
-        if not isinstance(idx, slice):
-            idx = torch.as_tensor(idx, dtype=torch.long, device=self.fpn[0].device)
-        return ImageFeatures([t[idx] for t in self.vit_taps], self.vit_hw, tuple(t[idx] for t in self.fpn))
-
-    @staticmethod
-    def cat(items: list[ImageFeatures]) -> ImageFeatures:
-        return ImageFeatures(
-            [torch.cat([it.vit_taps[i] for it in items]) for i in range(len(items[0].vit_taps))],
-            items[0].vit_hw,
-            tuple(torch.cat([it.fpn[i] for it in items]) for i in range(len(items[0].fpn))),
-        )
-
     def release(self) -> None:
         """Drop the references to the tensors (the object is empty afterwards)."""
         self.vit_taps, self.fpn = [], ()
-
-    def nbytes(self) -> int:
-        return sum(t.numel() * t.element_size() for t in [*self.vit_taps, *self.fpn])
 
 
 def per_image(fn, count: int, *inputs: torch.Tensor, out: list[torch.Tensor] | None = None) -> list[torch.Tensor]:

@@ -123,9 +123,10 @@ def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool
         raise InputError("no such file or folder", path)
     layout = detect.detect_layout(path)
     if layout == "images":
-        from mvsformerpp.pipelines.sfm import list_photos, run_sfm
+        from mvsformerpp.io.images import list_images
+        from mvsformerpp.pipelines.sfm import run_sfm
 
-        photos = path if list_photos(path) or not (path / "images").is_dir() else path / "images"
+        photos = path if list_images(path) or not (path / "images").is_dir() else path / "images"
         dense = run_sfm(photos, out / "sfm", quiet=quiet)
         return detect.load_scene(dense, depth_range=depth_range)
     if layout == "colmap" and _colmap_is_distorted(path):
