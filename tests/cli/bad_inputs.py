@@ -378,6 +378,21 @@ changed. `DIR` stands for the folder the test ran in. The table is generated fro
 (`python tests/cli/bad_inputs.py --write docs/bad-inputs.md`), and a test fails when a message here
 differs from what the command prints.
 
+Other failures the suite provokes, beyond one-line messages:
+
+- `kill -9` in the middle of a run, then the same command again: the result is byte for byte the one
+  of an uninterrupted run, and the temporaries of the killed run are gone (`reconstruct`:
+  `tests/pipelines/test_output_safety.py`; `fuse`, killed inside its final write:
+  `tests/pipelines/test_input_checks.py`; `train --resume`: `tests/training/test_train_slow.py`).
+- Two processes writing into one folder: the second stops and names the first's pid and host
+  (`tests/pipelines/test_output_safety.py`).
+- Checkpoints crafted to run code when unpickled (a pickled `os.system` call, alone or inside an
+  official-layout dict; torch zip files whose pickle walks `_rebuild_tensor_v2.__builtins__.get` to
+  `eval` by a protocol-4 dotted name; a dotted tail on an admitted name): each is shown to run under
+  an unrestricted load, then refused without running (`tests/models/test_checkpoint.py`).
+- Resume after editing one depth line, one `pair.txt` line or one photo recomputes exactly the views
+  that depend on it (`tests/pipelines/test_resume_validity.py`).
+
 | case | bad input | message |
 |---|---|---|
 """

@@ -41,3 +41,18 @@ def test_the_table_lists_every_case_and_only_those():
     assert len(ids) == len(set(ids)) >= 40
     assert list(_doc_rows()) == ids
     assert "docs/bad-inputs.md" in (bad_inputs.ROOT / "README.md").read_text()
+
+
+def test_an_os_error_the_user_can_fix_is_one_line(monkeypatch, capsys, tmp_path):
+    import errno
+
+    from mvsformerpp.cli import main
+
+    def denied(*a, **kw):
+        raise PermissionError(errno.EACCES, "Permission denied", str(tmp_path / "g.ply"))
+
+    monkeypatch.setattr("mvsformerpp.evaluation.distances.load_cloud", denied)
+    assert main(["evaluate", "cloud", "a.ply", "b.ply", "--threshold", "1"]) == 2
+    err = capsys.readouterr().err
+    assert err == f"error: {tmp_path / 'g.ply'}: Permission denied; check the path and its permissions " \
+                  "(finished outputs are kept)\n"

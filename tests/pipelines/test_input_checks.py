@@ -71,7 +71,7 @@ def test_a_depth_range_that_misses_the_scene_is_warned_about(tmp_path, caplog):
     with caplog.at_level(logging.WARNING, logger="mvsformerpp"):
         cfg = FAST.__class__(**{**FAST.__dict__, "depth_range": (own.depth_min / 100, own.depth_max / 100)})
         reconstruct(s, tmp_path / "o1", cfg, quiet=True, model=fake_model())
-    assert "covers less than half of the depths the input gives 3 of 3 views" in caplog.text
+    assert "covers less than half of the depth range the input gives 3 of 3 views" in caplog.text
     caplog.clear()
     with caplog.at_level(logging.WARNING, logger="mvsformerpp"):
         cfg = FAST.__class__(**{**FAST.__dict__, "depth_range": (own.depth_min * 0.9, own.depth_max * 1.1)})
@@ -147,3 +147,21 @@ def test_kill_9_during_fuse_then_rerun_matches_an_uninterrupted_run(tmp_path):
     assert main(["fuse", str(s), "--quiet"]) == 0
     assert (s / "fused.ply").read_bytes() == full.read_bytes()
     assert not list(s.glob(".fused.ply.*.tmp"))
+
+
+def test_a_depth_range_that_misses_the_sparse_points_is_warned_about(tmp_path, caplog):
+    sys.path.insert(0, str(Path(__file__).parents[1] / "io"))
+    from colmap_synth import synthetic_model, write_photos
+
+    from mvsformerpp.io.colmap_model import write_model
+
+    model = synthetic_model(n_views=3, n_points=400)  # cameras 4 units from the points
+    project = tmp_path / "colmap"
+    write_model(model, project / "sparse" / "0", ext=".txt")
+    write_photos(model, project / "images")
+    for k, (rng, warned) in enumerate([((0.1, 1.0), True), ((1.0, 10.0), False)]):
+        caplog.clear()
+        with caplog.at_level(logging.WARNING, logger="mvsformerpp"):
+            cfg = FAST.__class__(**{**FAST.__dict__, "depth_range": rng})
+            reconstruct(project, tmp_path / f"o{k}", cfg, quiet=True, model=fake_model())
+        assert ("leaves out most of the sparse points seen by 3 of 3 views" in caplog.text) == warned

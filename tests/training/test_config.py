@@ -79,3 +79,11 @@ def test_micro_batch_by_height():
     dtu = RECIPES["dtu"]
     assert micro_batch_for(dtu, 704, 4) == 4 and micro_batch_for(dtu, 768, 4) == 2
     assert micro_batch_for(RECIPES["synthetic"], 128, 4) == 4
+
+
+@pytest.mark.parametrize("over,match", [({"height": 64, "width": 80}, r"64x80 \(height/width\) must be .*64x96"),
+                                        ({"resolutions": [[64, 96], [100, 128]]}, "100x128"),
+                                        ({"num_views": 1}, "num_views"), ({"save_every": 0}, "save_every")])
+def test_unusable_values_are_rejected(over, match):
+    with pytest.raises(InputError, match=match):
+        load_config("synthetic", over)

@@ -102,3 +102,15 @@ def test_two_gloo_processes_take_the_single_process_step(tmp_path):
     assert moved > 0.9 * len(names)
     assert sorted(p.name for p in (two / "checkpoints").iterdir()) == ["best.safetensors", "last.safetensors",
                                                                        "last.state.pt"]
+
+
+@pytest.mark.parametrize("precision", ["bf16", "fp16"])
+def test_mixed_precision_steps(tmp_path, precision):
+    """bf16 autocast, and fp16 with a gradient scaler (its state in the checkpoint), train with finite losses."""
+    cfg = tiny_config(precision=precision, max_steps=2)
+    summary = run_training(cfg, tmp_path / "run")
+    assert summary["bad_steps"] == 0
+    rows = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert all(r["loss"] is not None for r in rows if "split" not in r)
+    state = torch.load(tmp_path / "run" / "checkpoints" / "last.state.pt", weights_only=True)
+    assert bool(state["scaler"]) == (precision == "fp16")

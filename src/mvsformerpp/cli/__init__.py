@@ -70,8 +70,9 @@ def main(argv: list[str] | None = None) -> int:
             raise
         where = f"{e.filename}: " if e.filename else ""
         advice = {errno.ENOSPC: "free some space and run the same command again",
-                  errno.EDQUOT: "free some space and run the same command again"}.get(
-            e.errno, "choose a location you can write to")
+                  errno.EDQUOT: "free some space and run the same command again",
+                  errno.EROFS: "the file system is read-only: choose another location"}.get(
+            e.errno, "check the path and its permissions")
         print(f"error: {where}{e.strerror}; {advice} (finished outputs are kept)", file=sys.stderr)
         return 2
     except MemoryError:

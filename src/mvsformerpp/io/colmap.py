@@ -74,6 +74,17 @@ def find_colmap_model(project: str | Path) -> tuple[Path, Path | None]:
     return model_dir, image_dir
 
 
+def sparse_point_depths(project: str | Path) -> dict[str, np.ndarray]:
+    """``{image name: z-depths of the sparse points it observes}`` of a COLMAP project or model folder."""
+    model = read_model(find_colmap_model(project)[0])
+    out = {}
+    for im in model.images.values():
+        ids = [int(p) for p in im.point3D_ids if p >= 0 and int(p) in model.points3D]
+        xyz = np.array([model.points3D[p].xyz for p in ids], dtype=np.float64).reshape(-1, 3)
+        out[im.name] = (xyz @ im.R.T + im.tvec)[:, 2]
+    return out
+
+
 def depth_range_from_points(
     z: np.ndarray, percentiles: tuple[float, float] = (1.0, 99.0), margin: tuple[float, float] = (0.75, 1.25)
 ) -> tuple[float, float] | None:

@@ -75,7 +75,7 @@ def format_summary(s: dict[str, Any]) -> str:
         f"ground truth: {s['views_with_gt_depth']} depth map(s), {s['views_with_mask']} mask(s)",
     ]
     if s.get("depth_lines"):
-        lines.insert(6, "depth lines:  " + ", ".join(f"{n} read as {form}" for form, n in s["depth_lines"].items()))
+        lines.insert(7, "depth lines:  " + ", ".join(f"{n} read as {form}" for form, n in s["depth_lines"].items()))
     if "views" in s:
         lines.append("")
         lines.append(f"{'#':>4}  {'name':<24} {'size':>11}  {'focal':>9}  {'depth range':>23}  neighbours")

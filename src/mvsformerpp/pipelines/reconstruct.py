@@ -21,6 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
 
+import numpy as np
 import torch
 
 from mvsformerpp.errors import FormatError, InputError, MVSFormerError
@@ -216,25 +217,35 @@ def range_coverage(lo: float, hi: float, own_min: float, own_max: float) -> floa
 
 
 def warn_if_range_misses_scene(input_path: str | Path, out: Path, config: ReconstructConfig) -> None:
-    """Warn when ``--depth-range`` leaves out most of the depths the input itself gives its views.
+    """Warn when ``--depth-range`` leaves out most of the scene for most views.
 
-    The input's own per-view range (from the sparse points a view sees, or its cam file's depth line)
-    spans where the scene is; a range covering less than half of it for most views is almost always
-    a unit mix-up (millimetres vs metres) and gives empty depth maps.
+    For a COLMAP input: most of the sparse points a view sees lie outside the range; otherwise the
+    range covers less than half of the view's own depth range (its cam file's depth line). Almost
+    always a unit mix-up (millimetres vs metres), which gives empty depth maps.
     """
     try:
         own = load_input(input_path, out, quiet=True, depth_format=config.depth_format)
     except MVSFormerError:
         return  # the input has no usable ranges of its own: nothing to compare with
     lo, hi = config.depth_range
+    if own.source_format == "colmap" and own.root is not None:  # the sparse points each view sees
+        from mvsformerpp.io.colmap import sparse_point_depths
+
+        z = {k: d for k, d in sparse_point_depths(own.root).items() if len(d)}
+        missed = [k for k, d in z.items() if np.mean((d >= lo) & (d <= hi)) < 0.5]
+        if z and len(missed) > len(z) / 2:
+            d = z[missed[0]]
+            log.warning("--depth-range %g %g leaves out most of the sparse points seen by %d of %d views (e.g. %s "
+                        "sees them at %.4g .. %.4g); check the units, or leave --depth-range out",
+                        lo, hi, len(missed), len(z), missed[0], float(d.min()), float(d.max()))
+        return
     ranged = [v for v in own.views if v.depth_min is not None and v.depth_max is not None]
     missed = [v for v in ranged if range_coverage(lo, hi, v.depth_min, v.depth_max) < 0.5]
     if ranged and len(missed) > len(ranged) / 2:
         v = missed[0]
-        log.warning("--depth-range %g %g covers less than half of the depths the input gives %d of %d views "
-                    "(e.g. %s: %.4g .. %.4g from its %s); check the units, or leave --depth-range out",
-                    lo, hi, len(missed), len(ranged), v.name, v.depth_min, v.depth_max,
-                    "sparse points" if own.source_format == "colmap" else "depth line")
+        log.warning("--depth-range %g %g covers less than half of the depth range the input gives %d of %d views "
+                    "(e.g. %s: %.4g .. %.4g from its depth line); check the units, or leave --depth-range out",
+                    lo, hi, len(missed), len(ranged), v.name, v.depth_min, v.depth_max)
 
 
 def connected_subset(scene: Scene, n: int) -> list[int]:

@@ -288,7 +288,25 @@ def load_config(recipe_or_file: str, overrides: dict | None = None) -> TrainConf
         if base is None:
             raise InputError(f"unknown recipe {data.get('recipe')!r}; choose one of {sorted(RECIPES)}", path)
         config = TrainConfig.from_dict(data, base)
-    return TrainConfig.from_dict(overrides or {}, config)
+    return check_config(TrainConfig.from_dict(overrides or {}, config))
+
+
+def check_config(config: TrainConfig) -> TrainConfig:
+    """Reject values the run cannot use, with the field and the fix; returns ``config``."""
+    sizes = [("height/width", (config.height, config.width))] + [("resolutions", r) for r in config.resolutions]
+    if config.val_height or config.val_width:
+        sizes.append(("val_height/val_width", (config.val_height or config.height, config.val_width or config.width)))
+    for name, (h, w) in sizes:
+        if h < 32 or w < 32 or h % 32 or w % 32:
+            raise InputError(f"training size {h}x{w} ({name}) must be multiples of 32 (64 recommended), e.g. "
+                             f"{max(32, -(-h // 32) * 32)}x{max(32, -(-w // 32) * 32)}")
+    if config.num_views < 2:
+        raise InputError(f"num_views must be at least 2 (the reference view and a source), got {config.num_views}")
+    if config.batch_size < 1 or (config.max_steps is not None and config.max_steps < 0) or config.epochs < 0:
+        raise InputError("batch_size must be >= 1 and max_steps/epochs >= 0")
+    if config.save_every < 1 or config.log_every < 1:
+        raise InputError("save_every and log_every must be >= 1")
+    return config
 
 
 def dump_config(config: TrainConfig) -> str:

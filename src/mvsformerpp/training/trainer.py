@@ -14,6 +14,7 @@ from __future__ import annotations
 import contextlib
 import math
 import random
+import re
 import time
 import warnings
 from pathlib import Path
@@ -232,7 +233,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
                                             device, info)
                 lr = opt.param_groups[0]["lr"]
                 with warnings.catch_warnings():  # a skipped step still advances the schedule
-                    warnings.filterwarnings("ignore", message="Detected call of `lr_scheduler.step()`")
+                    warnings.filterwarnings("ignore", message=re.escape("Detected call of `lr_scheduler.step()`"))
                     sched.step()
                 step += 1
                 n_log += per_rank * info.world_size
