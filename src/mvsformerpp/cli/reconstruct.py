@@ -40,7 +40,7 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                    help="widen each view's depth range from its minimum by S (the reference's interval_scale; "
                         "the paper's DTU and Tanks-and-Temples runs use 1.06); not applied to --depth-range")
     g.add_argument("--num-depth", type=int, default=_DEFAULT.num_depth, metavar="N",
-                   help=f"depth planes of a MIN INTERVAL cam line that states no count (default: {_DEFAULT.num_depth})")
+                   help=f"depth planes of the range, written to the output cams (default: {_DEFAULT.num_depth})")
     g.add_argument("--temperatures", type=float, nargs=4, default=_DEFAULT.temperatures, metavar="T",
                    help="per-stage softmax temperatures of the depth readout (default: 5 5 5 1, as the paper)")
     g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced",

@@ -55,7 +55,7 @@ class ReconstructConfig:
     """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
     num_depth: int = 192
     """Depth-plane count of the input range, written to the output cams (the cascade uses only the ends
-    of the range; a cam file's MIN INTERVAL line spans ``num_depth - 1`` intervals when it states no count)."""
+    of the range)."""
     interval_scale: float = 1.0
     """Widen (or narrow) each view's depth range from its minimum by this factor: the reference's
     ``interval_scale`` for ranges given as MIN INTERVAL (DTU: 1.06, so 425 + 191 x 2.5 x 1.06 mm).
@@ -109,13 +109,11 @@ class ReconstructConfig:
 
 
 def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool = False,
-               depth_range: tuple[float, float] | None = None, depth_format: str = "auto",
-               num_depth: int = 192) -> Scene:
+               depth_range: tuple[float, float] | None = None, depth_format: str = "auto") -> Scene:
     """Load INPUT as a Scene, running SfM (photos) or undistortion (distorted COLMAP) into ``out``.
 
     ``depth_range`` replaces every view's range (the input's depth lines are then not read at all);
-    ``depth_format`` says how two-number MVSNet depth lines are read, ``num_depth`` how many planes a
-    MIN INTERVAL line spans when it states no count.
+    ``depth_format`` says how two-number MVSNet depth lines are read.
     """
     from mvsformerpp.io import detect
 
@@ -145,7 +143,7 @@ def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool
                 raise InputError(f"COLMAP could not undistort this project ({_first_line(e)})", path) from e
             (target / "DONE").write_text("undistorted\n")
         return detect.load_scene(target, depth_range=depth_range)
-    return detect.load_scene(path, depth_range=depth_range, depth_format=depth_format, num_depth=num_depth)
+    return detect.load_scene(path, depth_range=depth_range, depth_format=depth_format)
 
 
 def _first_line(e: BaseException) -> str:
@@ -335,7 +333,7 @@ def _reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruc
     t0 = time.perf_counter()
     folder = OutputFolder(out_dir)
     full = load_input(input_path, folder.root, quiet=quiet, depth_range=config.depth_range,
-                      depth_format=config.depth_format, num_depth=config.num_depth)
+                      depth_format=config.depth_format)
     fingerprint = scene_fingerprint(full)
     folder.check_scene(fingerprint)
     scene = prepare_scene(full, config)
