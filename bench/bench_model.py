@@ -64,6 +64,21 @@ def cvt_exponentials(H: int, W: int, cfg) -> float:
     return cfg.cvt_layers * cfg.cvt_heads * tokens**2
 
 
+def synthetic_inputs(H: int, W: int, views: int, device: str):
+    """Random images, cameras on a line 50 units apart (DTU-like depth range): the forward's inputs."""
+    import torch
+
+    imgs = torch.randn(1, views, 3, H, W, device=device)
+    proj = {}
+    for s, f in enumerate((8, 4, 2, 1)):
+        P = torch.zeros(1, views, 2, 4, 4, device=device)
+        P[:, :, 0] = torch.eye(4)
+        P[:, :, 0, 0, 3] = torch.arange(views) * 50.0
+        P[:, :, 1, :3, :3] = torch.tensor([[1.2 * W / f, 0, W / 2 / f], [0, 1.2 * W / f, H / 2 / f], [0, 0, 1]])
+        proj[f"stage{s + 1}"] = P
+    return imgs, proj, torch.tensor([[425.0, 935.0]], device=device)
+
+
 def child(size: str, device: str, precision: str, views: int, count_flops: bool, tune: bool) -> dict:
     import resource
 
@@ -78,15 +93,7 @@ def child(size: str, device: str, precision: str, views: int, count_flops: bool,
     H, W = (int(x) for x in size.split("x"))
     torch.manual_seed(0)
     model = build_model("paper").to(device).prepare_for_inference()
-    imgs = torch.randn(1, views, 3, H, W, device=device)
-    proj = {}
-    for s, f in enumerate((8, 4, 2, 1)):
-        P = torch.zeros(1, views, 2, 4, 4, device=device)
-        P[:, :, 0] = torch.eye(4)
-        P[:, :, 0, 0, 3] = torch.arange(views) * 50.0
-        P[:, :, 1, :3, :3] = torch.tensor([[1.2 * W / f, 0, W / 2 / f], [0, 1.2 * W / f, H / 2 / f], [0, 0, 1]])
-        proj[f"stage{s + 1}"] = P
-    dv = torch.tensor([[425.0, 935.0]], device=device)
+    imgs, proj, dv = synthetic_inputs(H, W, views, device)
     dtype = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}[precision]
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 

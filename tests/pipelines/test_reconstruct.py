@@ -268,9 +268,13 @@ def test_demo_command_reconstructs_the_temple_and_is_honest_about_weights(tmp_pa
     rc = main(["demo", "-o", str(out), "--max-images", "3", "--max-size", "128"])
     assert rc == 0
     text = capsys.readouterr().out
-    assert "NOT meaningful" in text and str(out / "fused.ply") in text and str(out / "depth_vis") in text
+    assert "weights shipped with mvsformerpp" in text and "not the paper's model" in text
+    assert str(out / "fused.ply") in text and str(out / "depth_vis") in text
     assert "README.txt" in text  # points to the data's attribution
     assert len(list((out / "depth_est").glob("*.pfm"))) == 3
+    rc = main(["demo", "-o", str(tmp_path / "paper"), "--preset", "paper", "--max-images", "2", "--max-size", "64",
+               "--quiet"])
+    assert rc == 0 and "randomly initialised" in capsys.readouterr().err  # no weights: said even when quiet
 
 
 def test_cli_reconstruct_quiet_depth_only(scene4, tmp_path, capsys):

@@ -1,33 +1,25 @@
-"""``mvsformerpp demo``: the bundled temple, end to end, with the lite network."""
+"""``mvsformerpp demo``: the bundled temple, end to end, with the lite network and its shipped weights."""
 
 from __future__ import annotations
 
 import argparse
 import dataclasses
 
-from mvsformerpp.cli.reconstruct import add_model_args, print_summary
-
-NO_WEIGHTS_NOTE = (
-    "note: no trained weights are bundled with mvsformerpp, so without --checkpoint the network is randomly "
-    "initialised and the depth maps and point cloud are NOT meaningful geometry; this demo shows the pipeline "
-    "end to end. Pass --checkpoint with weights trained for the preset to get a real reconstruction."
-)
+from mvsformerpp.cli.reconstruct import add_model_args, print_summary, print_weights
 
 
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
+    from mvsformerpp.pipelines.reconstruct import describe_weights
 
     config = dataclasses.replace(DEMO_CONFIG, preset=args.preset, checkpoint=args.checkpoint, device=args.device,
                                  precision=args.precision, max_size=args.max_size, max_images=args.max_images)
     if not args.quiet:
         print(f"Reconstructing the Middlebury temple ({temple_dir()}; see README.txt there for its credits)")
-        if args.checkpoint is None:
-            print(NO_WEIGHTS_NOTE)
+    print_weights(describe_weights(config), args.quiet)
     summary = run_demo(args.output, config, quiet=args.quiet)
     if not args.quiet:
         print_summary(summary, args.output)
-    elif args.checkpoint is None:
-        print(NO_WEIGHTS_NOTE)
     return 0
 
 

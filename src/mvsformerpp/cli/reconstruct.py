@@ -13,8 +13,11 @@ _DEFAULT = ReconstructConfig()
 def add_model_args(p: argparse.ArgumentParser, default_preset: str) -> None:
     g = p.add_argument_group("network")
     g.add_argument("--preset", choices=("lite", "paper"), default=default_preset,
-                   help=f"network preset (default: {default_preset}); 'lite' is a small network for CPU")
-    g.add_argument("--checkpoint", metavar="PATH", help="weights matching the preset (default: random init)")
+                   help=f"network preset (default: {default_preset}); 'lite' is a small network for CPU with "
+                        "trained weights shipped in the package, 'paper' the official MVSFormer++ network "
+                        "(with --checkpoint model_best.pth)")
+    g.add_argument("--checkpoint", metavar="PATH",
+                   help="weights matching the preset (default: the shipped weights for 'lite'; 'paper' has none)")
     g.add_argument("--device", default=_DEFAULT.device, help="torch device: cpu, cuda, cuda:1, ... (default: cpu)")
     g.add_argument("--precision", choices=("fp32", "bf16", "fp16"), default=_DEFAULT.precision,
                    help="autocast precision (default: fp32; bf16 is the reference's GPU setting)")
@@ -47,6 +50,9 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                                         "none"), default=_DEFAULT.fusion,
                    help=f"fusion preset (default: {_DEFAULT.fusion}; dtu, tnt_intermediate and tnt_advanced are the "
                         "paper's settings, see 'mvsformerpp fuse'); 'none' writes the depth maps only")
+    g.add_argument("--output-resolution", choices=("original", "working"), default=_DEFAULT.output_resolution,
+                   help="size of the depth/confidence maps: each photo's own (default), or the working "
+                        "resolution with images/ and cams/ scaled to match (smaller, faster to write)")
     g.add_argument("--cache-mb", type=int, default=_DEFAULT.cache_mb, metavar="MIB",
                    help=f"per-image feature cache budget (default: {_DEFAULT.cache_mb}; 0 disables it)")
     g.add_argument("--quiet", action="store_true", help="no progress bars (for scripts)")
@@ -60,6 +66,7 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         depth_format=args.depth_format,
         fusion=args.fusion, cache_mb=args.cache_mb, interval_scale=args.interval_scale, num_depth=args.num_depth,
         temperatures=tuple(args.temperatures),
+        output_resolution=args.output_resolution,
     )
 
 
@@ -73,12 +80,24 @@ def print_summary(summary: dict, out) -> None:
     print(f"  time        : {summary['timings']['total_s']:.1f} s")
 
 
+def print_weights(description: str, quiet: bool) -> None:
+    """Say which weights run (stdout); with --quiet only a warning about random weights (stderr)."""
+    import sys
+
+    if not quiet:
+        print(description)
+    elif "randomly initialised" in description:
+        print(f"warning: {description}", file=sys.stderr)
+
+
 def run(args: argparse.Namespace) -> int:
-    from mvsformerpp.pipelines.reconstruct import reconstruct
+    from mvsformerpp.pipelines.reconstruct import describe_weights, reconstruct
 
     if args.quiet:
         logging.getLogger("mvsformerpp").setLevel(logging.WARNING)
-    summary = reconstruct(args.input, args.output, config_from_args(args), quiet=args.quiet)
+    config = config_from_args(args)
+    print_weights(describe_weights(config), args.quiet)
+    summary = reconstruct(args.input, args.output, config, quiet=args.quiet)
     if not args.quiet:
         print_summary(summary, args.output)
     return 0

@@ -13,6 +13,7 @@ from collections.abc import Iterator, Sequence
 import torch
 
 from mvsformerpp.data.base import SampleKey
+from mvsformerpp.errors import InputError
 
 
 class MultiScaleBatchSampler:
@@ -32,9 +33,10 @@ class MultiScaleBatchSampler:
                  epoch: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1, start: int = 0,
                  drop_last: bool = True):
         if batch_size % world_size:
-            raise ValueError(f"the global batch size {batch_size} is not a multiple of the {world_size} processes")
+            raise InputError(f"the global batch size {batch_size} is not a multiple of the {world_size} processes; "
+                             "choose --batch-size accordingly")
         if not resolutions:
-            raise ValueError("at least one training resolution is needed")
+            raise InputError("at least one training resolution is needed")
         self.num_samples, self.batch_size = int(num_samples), int(batch_size)
         self.resolutions = [tuple(int(x) for x in r) for r in resolutions]
         self.seed, self.epoch, self.shuffle = int(seed), int(epoch), bool(shuffle)

@@ -69,15 +69,39 @@ def settings_hash(settings: dict) -> str:
 
 
 class OutputFolder:
-    """Reads and writes one reconstruction output folder."""
+    """Reads and writes one reconstruction output folder.
 
-    def __init__(self, root: str | Path):
+    Several processes may write views into one folder (ranks of a torchrun run, :mod:`.ranks`): rank 0
+    owns ``progress.json``; rank r > 0 records the views it writes in ``progress.rank<r>.json``, which
+    rank 0 folds into ``progress.json`` (:meth:`fold_rank_progress`) when the ranks are done, and at
+    its next start if a run stopped before that (a rank file is newer than ``progress.json`` for the
+    views it lists: a view is written by one rank per run, and every run starts by folding).
+    """
+
+    def __init__(self, root: str | Path, rank: int = 0):
         self.root = Path(root)
         if self.root.exists() and not self.root.is_dir():
             raise InputError("the output path exists and is not a folder; choose another -o", self.root)
         self.root.mkdir(parents=True, exist_ok=True)
-        self.progress_path = self.root / "progress.json"
-        self.progress = self._read_json(self.progress_path) or {"views": {}, "fusion": None}
+        self.rank = int(rank)
+        main = self.root / "progress.json"
+        self.progress_path = main if self.rank == 0 else self.root / f"progress.rank{self.rank}.json"
+        self.progress = self._read_json(main) or {"views": {}, "fusion": None}
+        if self.rank == 0:
+            self.fold_rank_progress()
+        else:  # this rank's own record: only the views it writes
+            self.progress = {"views": {}, "fusion": None}
+
+    def fold_rank_progress(self) -> None:
+        """Rank 0: merge the other ranks' progress files into ``progress.json`` and remove them."""
+        files = sorted(self.root.glob("progress.rank*.json"))
+        if not files:
+            return
+        for f in files:
+            self.progress["views"].update((self._read_json(f) or {}).get("views", {}))
+        self.save_progress()
+        for f in files:
+            f.unlink(missing_ok=True)
 
     def _read_json(self, path: Path) -> dict | None:
         if not path.is_file():
@@ -136,6 +160,24 @@ class OutputFolder:
         with disk_full_guard(path):
             atomic_write_text(path, json.dumps(data, indent=2, sort_keys=True, default=str) + "\n")
         return path
+
+    def write_working_image(self, i: int, src: Path, plan) -> Path:
+        """``images/NNNNNNNN<ext>``: the photo at the working resolution of ``plan`` (a
+        :class:`~mvsformerpp.inference.resolution.ViewResize`), the pixels the network sees; kept
+        when one of that size is already there."""
+        from PIL import Image
+
+        from mvsformerpp.io.images import image_size, read_image
+
+        dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"
+        if dst.is_file() and not dst.is_symlink() and dst.stat().st_nlink == 1 and \
+                image_size(dst) == (plan.resized_width, plan.resized_height):
+            return dst
+        fmt = Image.registered_extensions().get(dst.suffix, "PNG")
+        with disk_full_guard(dst), atomic_open(dst, "wb") as f:
+            Image.fromarray(plan.working_image(read_image(src))).save(f, format=fmt,
+                                                                      **({"quality": 95} if fmt == "JPEG" else {}))
+        return dst
 
     def link_image(self, i: int, src: Path) -> Path:
         """``images/NNNNNNNN<ext>``: a hard link to the input photo, or a copy across file systems."""

@@ -67,9 +67,18 @@ class ViewResize:
             x = F.pad(x[None], (0, pad_r, 0, pad_b), mode="replicate")[0]
         return x
 
+    def canvas_to_working(self, x: torch.Tensor) -> torch.Tensor:
+        """``[Hc, Wc]`` map on the canvas -> ``[resized_height, resized_width]`` (padding cropped out)."""
+        return x[: self.resized_height, : self.resized_width]
+
+    def working_image(self, image: np.ndarray) -> np.ndarray:
+        """uint8 ``[H, W, 3]`` at the original size -> uint8 at the working size: the pixels the network sees."""
+        x = self.canvas_to_working(self.image_to_canvas(image).permute(1, 2, 0))
+        return x.mul(255.0).round_().clamp_(0, 255).to(torch.uint8).numpy()
+
     def canvas_to_original(self, x: torch.Tensor, mode: str = "bilinear") -> torch.Tensor:
         """``[Hc, Wc]`` map on the canvas -> ``[H, W]`` at the original size (padding cropped out)."""
-        x = x[: self.resized_height, : self.resized_width]
+        x = self.canvas_to_working(x)
         if (self.resized_width, self.resized_height) == (self.width, self.height):
             return x
         kw = {"align_corners": False} if mode == "bilinear" else {}

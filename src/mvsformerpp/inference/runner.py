@@ -64,7 +64,8 @@ class SceneInference:
 
     def __init__(self, model: torch.nn.Module, scene: Scene, plans: list[ViewResize], load_image,
                  num_views: int, num_depth: int = 192, temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0),
-                 device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30):
+                 device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30,
+                 output_resolution: str = "original"):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
         self.model = inference.prepare(model)  # eval mode with the inference forms built, once
@@ -76,6 +77,9 @@ class SceneInference:
         self.temperatures = list(temperatures)
         self.device = torch.device(device)
         self.precision = precision
+        if output_resolution not in ("original", "working"):
+            raise ValueError(f"output_resolution must be 'original' or 'working', got {output_resolution!r}")
+        self.output_resolution = output_resolution
         # A network without a separate per-image encoder runs without the cache.
         self.use_cache = cache_bytes > 0 and callable(getattr(model, "encode_images", None))
         self.cache = FeatureCache(self._encode, cache_bytes)
@@ -95,14 +99,36 @@ class SceneInference:
         with self._autocast():
             return self.model.encode_images(self.canvas_image(i)[None])
 
+    def view_set(self, ref: int) -> list[int]:
+        """The images reference view ``ref`` needs: itself and its source views."""
+        return [ref] + select_sources(self.scene, ref, self.num_views)
+
+    def schedule(self, todo: list[int]) -> dict:
+        """A cache-friendly order of the reference views ``todo`` (:mod:`.schedule`) and what it predicts.
+
+        The cache capacity in images comes from the size of one image's features: the first view's
+        reference image is encoded here (and cached, so its own view then hits). Returns ``order``,
+        ``capacity_images`` and the simulated ``predicted`` / ``predicted_index_order`` hits and misses.
+        """
+        from mvsformerpp.inference.schedule import cache_friendly_order, simulate_cache
+        from mvsformerpp.utils.lru import tree_nbytes
+
+        if not todo or not self.use_cache:
+            return {"order": list(todo), "capacity_images": 0}
+        capacity = self.cache.max_bytes // max(1, tree_nbytes(self.cache.get(todo[0])))
+        sets = {r: self.view_set(r) for r in todo}
+        order = cache_friendly_order(todo, sets, capacity)
+        return {"order": order, "capacity_images": int(capacity), "predicted": simulate_cache(order, sets, capacity),
+                "predicted_index_order": simulate_cache(sorted(todo), sets, capacity)}
+
     @torch.no_grad()
     def infer(self, ref: int) -> ViewResult:
-        """Depth and confidence of reference view ``ref`` at its original resolution."""
+        """Depth and confidence of reference view ``ref`` at its original resolution (or the working one)."""
         import time
 
         t0 = time.perf_counter()
-        srcs = select_sources(self.scene, ref, self.num_views)
-        ids = [ref] + srcs
+        ids = self.view_set(ref)
+        srcs = ids[1:]
         views = [self.scene.views[i] for i in ids]
         imgs = torch.stack([self.canvas_image(i) for i in ids])[None]  # [1,V,3,Hc,Wc]
         extr = np.stack([v.extrinsic for v in views])
@@ -116,7 +142,11 @@ class SceneInference:
             out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
                              release_features=feats is not None)
         plan = self.plans[ref]
-        depth, conf = plan.depth_to_original(out["depth"][0], out["photometric_confidence"][0])
+        if self.output_resolution == "working":
+            depth = plan.canvas_to_working(out["depth"][0].float())
+            conf = plan.canvas_to_working(out["photometric_confidence"][0].float())
+        else:
+            depth, conf = plan.depth_to_original(out["depth"][0], out["photometric_confidence"][0])
         depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).clamp_(min=0.0)
         conf = torch.nan_to_num(conf, nan=0.0).clamp_(0.0, 1.0)
         return ViewResult(depth=depth.cpu().numpy().astype(np.float32),

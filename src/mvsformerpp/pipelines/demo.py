@@ -12,7 +12,8 @@ from pathlib import Path
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
 # The lite network at half the photos' size (320x240; about two minutes on a 2-core CPU), five views per depth map.
-DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion="normal")
+# Dynamic fusion at confidence 0.1: the shipped weights' confidences are low (docs/model-card.md).
+DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion="dynamic", fusion_conf=0.1)
 
 
 def temple_dir() -> Path:

@@ -38,10 +38,12 @@ log = logging.getLogger(__name__)
 class ReconstructConfig:
     """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
 
-    preset: Literal["lite", "paper"] = "paper"
-    """Network preset (``mvsformerpp.build_model``); ``lite`` is a small network for CPU and tests."""
+    preset: Literal["lite", "paper"] = "lite"
+    """Network preset (``mvsformerpp.build_model``): ``lite`` (small, CPU-friendly; the package ships trained
+    weights for it) or ``paper`` (the official MVSFormer++ network: pass its checkpoint)."""
     checkpoint: str | None = None
-    """Weights file matching the preset; None = the preset's default initialisation (random)."""
+    """Weights file matching the preset; None = the weights shipped with the package for ``lite``
+    (:mod:`mvsformerpp.models.shipped`), a random initialisation for presets without shipped weights."""
     device: str = "cpu"
     """torch device string, e.g. ``cpu``, ``cuda``, ``cuda:1``."""
     precision: Literal["fp32", "bf16", "fp16"] = "fp32"
@@ -71,6 +73,13 @@ class ReconstructConfig:
     fusion: Literal["normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced", "none"] = "normal"
     """Fusion preset (``mvsformerpp.fusion.PRESETS``; ``dtu``, ``tnt_intermediate`` and ``tnt_advanced`` are
     the reference's settings); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
+    fusion_conf: float | None = None
+    """Override of the fusion preset's confidence threshold (None = the preset's); the shipped default weights'
+    confidences are low (not calibrated), so the demo fuses them at 0.1."""
+    output_resolution: Literal["original", "working"] = "original"
+    """``original``: depth and confidence maps at each photo's size (upsampled from the working
+    resolution); ``working``: at the working resolution, with ``images/`` resized and ``cams/`` scaled
+    to match (smaller files, no upsampling, cheaper previews; fusion reads either)."""
     cache_mb: int = 2048
     """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
     seed: int = 0
@@ -94,13 +103,15 @@ class ReconstructConfig:
             raise InputError(f"--depth-format must be auto, interval or max, got {self.depth_format!r}")
         if not self.interval_scale > 0:
             raise InputError(f"--interval-scale must be positive, got {self.interval_scale}")
+        if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
+            raise InputError(f"fusion_conf must be in [0, 1), got {self.fusion_conf}")
         if len(self.temperatures) != 4:
             raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
 
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""
         d = dataclasses.asdict(self)
-        for k in ("device", "memory_gb", "cache_mb", "fusion"):
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf"):
             d.pop(k)
         return d
 
@@ -282,15 +293,19 @@ def _check_images(scene: Scene) -> None:
 
 
 def build_network(config: ReconstructConfig) -> torch.nn.Module:
-    """The preset's network on the configured device, with the checkpoint's weights if one is given."""
+    """The preset's network on the configured device with its weights: the checkpoint if one is given, else
+    the shipped default weights (``lite``), else a seeded random initialisation."""
     import mvsformerpp
+    from mvsformerpp.models import shipped
 
-    torch.manual_seed(config.seed)
-    model = mvsformerpp.build_model(config.preset)
     if config.checkpoint is not None:
         ckpt = Path(config.checkpoint)
         if not ckpt.is_file():
             raise InputError("checkpoint file not found", ckpt)
+        _check_stored_preset(ckpt, config.preset)
+    torch.manual_seed(config.seed)
+    model = mvsformerpp.build_model(config.preset)
+    if config.checkpoint is not None:
         try:
             mvsformerpp.load_checkpoint(model, ckpt)
         except MVSFormerError:
@@ -299,7 +314,53 @@ def build_network(config: ReconstructConfig) -> torch.nn.Module:
             raise FormatError(
                 f"checkpoint does not match the '{config.preset}' preset ({str(e).splitlines()[0][:300]}); "
                 "pass the preset it was trained with (--preset)", ckpt) from e
+    elif config.preset == shipped.SHIPPED_PRESET:
+        shipped.load_shipped(model)
     return model.to(torch.device(config.device)).eval()
+
+
+def _check_stored_preset(ckpt: Path, preset: str) -> None:
+    """A safetensors checkpoint that records its config must be for ``preset``: else say which preset it is for."""
+    if ckpt.suffix != ".safetensors":
+        return
+    from mvsformerpp.models.checkpoint import read_safetensors
+    from mvsformerpp.models.config import get_config, presets_for
+
+    _, stored = read_safetensors(ckpt)
+    if stored is None:
+        return
+    fits = presets_for(stored)
+    if preset in fits:
+        return
+    if fits:
+        raise InputError(f"checkpoint is for the '{fits[0]}' preset (its stored config), not '{preset}': "
+                         f"pass --preset {fits[0]}", ckpt)
+    wanted = get_config(preset).to_dict()
+    diff = sorted(k for k, v in stored.to_dict().items() if wanted.get(k) != v)
+    raise InputError(f"checkpoint's stored config fits no preset (it differs from '{preset}' in "
+                     f"{', '.join(diff[:6])}); load it from Python with mvsformerpp.load_model", ckpt)
+
+
+def describe_weights(config: ReconstructConfig) -> str:
+    """One line saying which weights ``build_network(config)`` uses."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is not None:
+        return f"weights: {config.checkpoint} ('{config.preset}' preset)"
+    if config.preset == shipped.SHIPPED_PRESET:
+        return "weights: " + shipped.describe_shipped()
+    return (f"weights: NONE - the '{config.preset}' preset has no shipped weights, so the network is randomly "
+            "initialised and the depth maps are not meaningful; pass --checkpoint (for the paper preset: the "
+            "official model_best.pth), or use --preset lite for the shipped default weights")
+
+
+def weights_id(config: ReconstructConfig) -> str:
+    """Identity of the weights for the resume check (the shipped file's digest: new weights redo the views)."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is None and config.preset == shipped.SHIPPED_PRESET:
+        return "shipped:" + shipped.shipped_record()["sha256"]
+    return f"checkpoint:{config.checkpoint}" if config.checkpoint else f"random:{config.seed}"
 
 
 # ---------------------------------------------------------------------------------------------- main
@@ -312,8 +373,10 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     ``model`` replaces the preset's network (already on the device), e.g. for tests or benchmarks.
     Finished views are skipped on a repeated call with the same settings. ``out_dir`` must not be,
     contain or lie inside INPUT, nor hold files of anything but an earlier ``reconstruct``; one run
-    at a time holds it (:mod:`mvsformerpp.utils.output_guard`).
+    at a time holds it (:mod:`mvsformerpp.utils.output_guard`). Under ``torchrun`` the processes share
+    the views out (:mod:`mvsformerpp.inference.ranks`), rank 0 holds the folder for them and fuses.
     """
+    from mvsformerpp.inference.ranks import ranks_from_env
     from mvsformerpp.utils.output_guard import claim_output_folder
 
     if not Path(input_path).exists():
@@ -321,109 +384,190 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     if config.checkpoint is not None and model is None and not Path(config.checkpoint).is_file():
         raise InputError("checkpoint file not found", config.checkpoint)
     _device(config.device)
-    with claim_output_folder(out_dir, [input_path], "reconstruct"):
-        return _reconstruct(input_path, out_dir, config, quiet, model)
+    ranks = ranks_from_env(config.device)
+    try:
+        with claim_output_folder(out_dir, [input_path], "reconstruct"):
+            return _reconstruct(input_path, out_dir, config, quiet or not ranks.is_main, model, ranks)
+    finally:
+        ranks.close()
 
 
-def _reconstruct(input_path: str | Path, out_dir: str | Path, config: ReconstructConfig, quiet: bool,
-                 model: torch.nn.Module | None) -> dict:
+def _flag(field: str) -> str:
+    """The command-line flag of a config field (for messages)."""
+    return {"num_views": "--views"}.get(field, "--" + field.replace("_", "-"))
+
+
+def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ranks) -> dict:
     from tqdm import tqdm
+
+    from mvsformerpp.inference.ranks import StoppedByOtherRank
 
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    folder = OutputFolder(out_dir)
-    full = load_input(input_path, folder.root, quiet=quiet, depth_range=config.depth_range,
-                      depth_format=config.depth_format)
-    fingerprint = scene_fingerprint(full)
-    folder.check_scene(fingerprint)
-    scene = prepare_scene(full, config)
-    if config.depth_range is not None:
+    ranks.agree({"INPUT": str(input_path), "-o": str(out_dir),
+                 **{_flag(k): v for k, v in dataclasses.asdict(config).items()}})
+    folder = ranks.in_turn(lambda: _open_folder(out_dir, ranks))
+    ranks.check_shared_folder(folder.root)
+    full = ranks.in_turn(lambda: load_input(input_path, folder.root, quiet=quiet, depth_range=config.depth_range,
+                                            depth_format=config.depth_format))
+
+    def setup():
+        fingerprint = scene_fingerprint(full)
+        folder.check_scene(fingerprint)
+        return fingerprint, prepare_scene(full, config), _device(config.device, ranks)
+
+    fingerprint, scene, device = ranks.step(setup)
+    ranks.agree({"the input scene (cameras and images)": fingerprint})
+    if config.depth_range is not None and ranks.is_main:
         warn_if_range_misses_scene(input_path, folder.root, config)
     timings["input_s"] = time.perf_counter() - t0
 
-    device = _device(config.device)
     sizes = [(v.width, v.height) for v in scene.views]
     budget = config.memory_gb * 2**30 if config.memory_gb else 0.5 * available_memory_bytes(device)
-    long_side = choose_long_side(sizes, config.num_views, config.max_size, budget)
+    # Rank 0's choice for all: free memory differs between machines, the working resolution may not.
+    long_side = ranks.broadcast(choose_long_side(sizes, config.num_views, config.max_size, budget))
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
-    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved},
-                             weights_identity(config.checkpoint) if model is None else None)
+    weights = None
+    if model is None:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
+        weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
+    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved}, weights)
 
-    # Cameras, pairs and image links in the MVSNet layout (fusion reads them from here).
-    from mvsformerpp.io.mvsnet import write_mvsnet_scene
+    def write_scene() -> list[int]:
+        """Cameras, pairs and image links in the MVSNet layout (fusion reads them from here); the views to do."""
+        from mvsformerpp.io.mvsnet import write_mvsnet_scene
 
-    with disk_full_guard(folder.root):
-        write_mvsnet_scene(scene, folder.root, copy_images=False, num_depth=config.num_depth)
-        for i, v in enumerate(scene.views):
-            folder.link_image(i, v.image_path)
-    folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
-    folder.write_json("config.json", {"config": dataclasses.asdict(config), "resolved": resolved,
-                                      "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
-                                      "source_format": full.source_format, "num_views_in_input": len(full)})
+        working = config.output_resolution == "working"
+        with disk_full_guard(folder.root):
+            write_mvsnet_scene(working_scene(scene, plans) if working else scene, folder.root, copy_images=False,
+                               num_depth=config.num_depth)
+            for i, v in enumerate(scene.views):
+                if working:
+                    folder.write_working_image(i, v.image_path, plans[i])
+                else:
+                    folder.link_image(i, v.image_path)
+        folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
+        folder.write_json("config.json", {"config": dataclasses.asdict(config), "resolved": resolved,
+                                          "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
+                                          "source_format": full.source_format, "num_views_in_input": len(full)})
+        return [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
 
-    todo = [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
+    todo = ranks.broadcast(ranks.step(write_scene, only_main=True))
+
     t1 = time.perf_counter()
-    cache_stats = None
+    cache_stats = schedule = None
     if todo:
-        if model is None:
-            model = build_network(config)
-        from mvsformerpp.io.images import read_image
+        def start():
+            net = model if model is not None else build_network(config)
+            from mvsformerpp.io.images import read_image
 
-        runner = SceneInference(model, scene, plans, lambda i: read_image(scene.views[i].image_path),
-                                num_views=config.num_views, num_depth=config.num_depth,
-                                temperatures=config.temperatures, device=device, precision=config.precision,
-                                cache_bytes=config.cache_mb << 20)
-        for i in tqdm(todo, desc="Depth maps", unit="view", disable=quiet):
-            res = runner.infer(i)
-            folder.write_view(i, res.depth, res.confidence, keys[i])
+            runner = SceneInference(net, scene, plans, lambda i: read_image(scene.views[i].image_path),
+                                    num_views=config.num_views, num_depth=config.num_depth,
+                                    temperatures=config.temperatures, device=device, precision=config.precision,
+                                    cache_bytes=config.cache_mb << 20, output_resolution=config.output_resolution)
+            return runner, runner.schedule(todo)
+
+        runner, schedule = ranks.step(start)
+        mine = ranks.shard(schedule["order"])
+        error = None
+        try:
+            for i in tqdm(mine, desc="Depth maps", unit="view", disable=quiet):
+                stop = ranks.stop_requested(folder.root)
+                if stop is not None:
+                    raise StoppedByOtherRank(stop)
+                res = runner.infer(i)
+                folder.write_view(i, res.depth, res.confidence, keys[i])
+        except Exception as e:  # (exchanged with the other ranks, then raised again)
+            error = e
+        ranks.outcome(error)
         cache_stats = runner.cache.stats()
     timings["depth_s"] = time.perf_counter() - t1
     timings["views_computed"] = len(todo)
+    per_rank = ranks.gather({"views": len(ranks.shard(schedule["order"])) if schedule else 0,
+                             "depth_s": round(timings["depth_s"], 3), "feature_cache": cache_stats})
 
-    t2 = time.perf_counter()
-    ply = folder.root / "fused.ply"
-    points = None
-    if config.fusion != "none":
-        fusion_state = settings_hash({"depth": keys, "fusion": config.fusion})
-        if not folder.fusion_done(fusion_state):
-            with disk_full_guard(ply):
-                _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb)
-            folder.mark_fusion(fusion_state)
-        from mvsformerpp.io.ply import ply_vertex_count
+    def finish() -> dict:
+        folder.fold_rank_progress()
+        t2 = time.perf_counter()
+        ply = folder.root / "fused.ply"
+        points = None
+        if config.fusion != "none":
+            fusion_state = settings_hash({"depth": keys, "fusion": config.fusion, "conf": config.fusion_conf})
+            if not folder.fusion_done(fusion_state):
+                with disk_full_guard(ply):
+                    _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, config.fusion_conf)
+                folder.mark_fusion(fusion_state)
+            from mvsformerpp.io.ply import ply_vertex_count
 
-        points = ply_vertex_count(ply)
-    timings["fusion_s"] = time.perf_counter() - t2
-    timings["total_s"] = time.perf_counter() - t0
+            points = ply_vertex_count(ply)
+        timings["fusion_s"] = time.perf_counter() - t2
+        timings["total_s"] = time.perf_counter() - t0
+        summary = {
+            "views": len(scene),
+            "points": points,
+            "working_resolution": resolved,
+            "preset": config.preset,
+            "checkpoint": config.checkpoint,
+            "weights": describe_weights(config) if model is None else "a network given by the caller",
+            "timings": {k: round(v, 3) for k, v in timings.items()},
+            "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
+            "schedule": None if schedule is None else {k: v for k, v in schedule.items() if k != "order"},
+            "ranks": per_rank if ranks.distributed else None,
+            "outputs": {"ply": str(ply) if points is not None else None,
+                        "depth_vis": str(folder.root / "depth_vis")},
+        }
+        folder.write_json("summary.json", summary)
+        return summary
 
-    summary = {
-        "views": len(scene),
-        "points": points,
-        "working_resolution": resolved,
-        "preset": config.preset,
-        "checkpoint": config.checkpoint,
-        "timings": {k: round(v, 3) for k, v in timings.items()},
-        "feature_cache": cache_stats,
-        "outputs": {"ply": str(ply) if points is not None else None, "depth_vis": str(folder.root / "depth_vis")},
-    }
-    folder.write_json("summary.json", summary)
-    return summary
+    return ranks.broadcast(ranks.step(finish, only_main=True))
 
 
-def _device(name: str) -> torch.device:
+def _open_folder(out_dir, ranks) -> OutputFolder:
+    """This rank's view of the output folder. Under torchrun, rank 0 opens it first (before any rank
+    writes) and removes the temporaries a killed run left, which a single process does when it claims
+    the folder (:func:`~mvsformerpp.utils.output_guard.claim_output_folder`)."""
+    folder = OutputFolder(out_dir, rank=ranks.rank)
+    if ranks.distributed and ranks.is_main:
+        from mvsformerpp.utils.output_guard import remove_temporaries
+
+        remove_temporaries(folder.root)
+    return folder
+
+
+def working_scene(scene: Scene, plans) -> Scene:
+    """The scene at the working resolution: each view's size and intrinsics scaled as its plan resizes it."""
+    views = [dataclasses.replace(v, width=p.resized_width, height=p.resized_height, K=p.scale_intrinsics(v.K))
+             for v, p in zip(scene.views, plans)]
+    return Scene(views=views, root=scene.root, source_format=scene.source_format)
+
+
+def _sum_stats(stats: list[dict | None]) -> dict | None:
+    """Feature-cache counters of all ranks added up (None when no rank computed a view)."""
+    stats = [s for s in stats if s is not None]
+    if not stats:
+        return None
+    return {k: sum(s[k] for s in stats) for k in stats[0]}
+
+
+def _device(name: str, ranks=None) -> torch.device:
+    """The torch device of ``--device``; ``cuda`` under torchrun is each rank's GPU ``LOCAL_RANK``."""
     from mvsformerpp.utils.device import parse_device
 
-    return parse_device(name)
+    device = parse_device(name)
+    if device.type == "cuda" and device.index is None and ranks is not None and ranks.distributed:
+        device = torch.device("cuda", ranks.local_rank)
+    return device
 
 
-def _fusion_config(name: str):
-    """The named fusion preset of :mod:`mvsformerpp.fusion`."""
+def _fusion_config(name: str, conf: float | None = None):
+    """The named fusion preset of :mod:`mvsformerpp.fusion`, with ``conf`` as its confidence threshold."""
     from mvsformerpp.fusion import get_config
 
-    return get_config(name)
+    return get_config(name) if conf is None else get_config(name, conf_threshold=conf)
 
 
-def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None) -> None:
+def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None,
+                conf: float | None = None) -> None:
     from mvsformerpp.pipelines.fuse import fuse
 
-    fuse(folder, ply, _fusion_config(name), quiet=quiet, memory_gb=memory_gb)
+    fuse(folder, ply, _fusion_config(name, conf), quiet=quiet, memory_gb=memory_gb)

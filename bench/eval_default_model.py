@@ -1,0 +1,75 @@
+"""Quality of a set of weights (default: the shipped ones) on held-out synthetic scenes and the real checks.
+
+    python bench/eval_default_model.py [--checkpoint RUN/checkpoints/best.safetensors] [--out DIR]
+                                       [--json quality.json] [--scenes 4] [--skip-real]
+
+Synthetic: ``--scenes`` scenes of the training style on seeds no run trains on, and as many of the
+held-out style (see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair with ground-truth depth
+(tests/data/dtu_pair) and the Middlebury temple of the demo. Prints one table and writes the JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import tempfile
+import time
+from pathlib import Path
+
+
+def main() -> None:
+    from mvsformerpp.pipelines.model_quality import dtu_pair_quality, synthetic_quality, temple_quality
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, describe_weights
+    from mvsformerpp.utils.allocator import tune_allocator
+
+    p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    p.add_argument("--checkpoint", help="lite weights to evaluate (default: the shipped weights)")
+    p.add_argument("--out", help="work folder (default: a temporary one)")
+    p.add_argument("--json", help="write the results here")
+    p.add_argument("--scenes", type=int, default=4, help="synthetic scenes per style (default: 4)")
+    p.add_argument("--skip-real", action="store_true", help="only the synthetic scenes")
+    args = p.parse_args()
+    tune_allocator()
+    config = ReconstructConfig(preset="lite", checkpoint=args.checkpoint, num_views=5, fusion="normal")
+    print(describe_weights(config))
+    with tempfile.TemporaryDirectory() as tmp:
+        out = Path(args.out or tmp)
+        results: dict = {"weights": describe_weights(config)}
+        t = time.perf_counter()
+        for style in ("train", "heldout"):
+            results[f"synthetic_{style}"] = synthetic_quality(out / f"synth_{style}", config, style=style,
+                                                              scenes=args.scenes)
+        if not args.skip_real:
+            results["dtu_pair"] = dtu_pair_quality(Path(__file__).resolve().parents[1] / "tests/data/dtu_pair",
+                                                   out / "dtu_pair", config)
+            results["temple"] = temple_quality(out / "temple", config=None if args.checkpoint is None else
+                                               _demo_with(args.checkpoint))
+        results["wall_s"] = round(time.perf_counter() - t, 1)
+    for key in ("synthetic_train", "synthetic_heldout"):
+        r = results[key]
+        print(f"{key:18s} within 1% of range {100 * r['within_1pct']:5.1f}%   accuracy "
+              f"{_pct(r['accuracy_pct'])}   completeness {_pct(r['completeness_pct'])} of the scene depth")
+    if "dtu_pair" in results:
+        r = results["dtu_pair"]
+        print(f"{'dtu_pair':18s} within 4 mm {100 * r['within_4mm']:5.1f}%   within 8 mm {100 * r['within_8mm']:5.1f}%")
+        r = results["temple"]
+        print(f"{'temple':18s} {r['points']} points, {100 * r['inside_box']:.1f}% inside the box, "
+              f"{100 * r['on_silhouette']:.1f}% on the silhouettes")
+    if args.json:
+        Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
+
+
+def _pct(x) -> str:
+    return "  n/a" if x is None else f"{x:5.2f}%"
+
+
+def _demo_with(checkpoint: str):
+    import dataclasses
+
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG
+
+    return dataclasses.replace(DEMO_CONFIG, checkpoint=checkpoint)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,149 @@
+"""How good a set of weights is, measured through ``reconstruct`` (what users get), on three kinds of data.
+
+- :func:`synthetic_quality`: scenes from :mod:`mvsformerpp.synth` with exact ground truth, on seeds no
+  training run uses (training takes seeds ``seed .. seed + scenes``, validation ``seed + 10^6 ..``) and
+  on the ``heldout`` style training never sees. Depth: the share of valid pixels within 1 % of the
+  view's depth range (the cam file's min..max); cloud: accuracy and completeness of the fused cloud
+  against the scene's ground-truth surface, as a percentage of the mean ground-truth depth.
+- :func:`dtu_pair_quality`: the two real DTU views with ground-truth depth in ``tests/data/dtu_pair``:
+  the share of valid ground-truth pixels within 4 mm and 8 mm.
+- :func:`temple_quality`: the Middlebury temple of the demo: fused points, the share inside the
+  object's bounding box (its README), and the share of points that project onto the object in each
+  photo (the background is black: the object is where the photo is brighter than :data:`DARK`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import shutil
+from pathlib import Path
+
+import numpy as np
+
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+
+HELDOUT_SEED = 5_000_000
+"""First scene seed of the held-out synthetic evaluation (far from every training and validation seed)."""
+DARK = 20
+"""Temple photos: pixels whose brightest channel is at most this (of 255) are background."""
+
+
+def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str = "train", scenes: int = 4,
+                      seed: int = HELDOUT_SEED, num_views: int = 5, height: int = 192, width: int = 256,
+                      quiet: bool = True) -> dict:
+    """Depth and cloud quality on ``scenes`` synthetic scenes of ``style`` (module docstring)."""
+    from mvsformerpp.evaluation.cloud import cloud_distances
+    from mvsformerpp.io.mvsnet import read_cam
+    from mvsformerpp.io.pfm import read_pfm
+    from mvsformerpp.io.ply import ply_points, read_ply
+    from mvsformerpp.synth import generate_scene
+
+    out = Path(out_dir)
+    within = total = 0
+    acc, comp, per_scene = [], [], []
+    for k in range(scenes):
+        scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
+                                   width=width, style=style)
+        rec = out / f"recon_{k}"
+        cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views))
+        reconstruct(scene_dir, rec, cfg, quiet=quiet)
+        s_within = s_total = 0
+        depths = []
+        for i in range(num_views):
+            gt = read_pfm(scene_dir / "depth_gt" / f"{i:08d}.pfm")
+            est = read_pfm(rec / "depth_est" / f"{i:08d}.pfm")
+            cam = read_cam(scene_dir / "cams" / f"{i:08d}_cam.txt")
+            valid = gt > 0
+            tol = 0.01 * (cam.depth_max - cam.depth_min)
+            ok = np.abs(est[valid] - gt[valid]) < tol
+            s_within += int(ok.sum())
+            s_total += int(valid.sum())
+            depths.append(gt[valid])
+        mean_depth = float(np.concatenate(depths).mean())
+        pred = ply_points(read_ply(rec / "fused.ply")).astype(np.float64)
+        gt_pts = ply_points(read_ply(scene_dir / "gt_surface.ply")).astype(np.float64)
+        row = {"seed": seed + k, "within_1pct": s_within / s_total, "points": int(len(pred))}
+        if len(pred):
+            d = cloud_distances(pred, gt_pts)
+            row["accuracy_pct"] = 100 * float(d.pred_to_gt.mean()) / mean_depth
+            row["completeness_pct"] = 100 * float(d.gt_to_pred.mean()) / mean_depth
+            acc.append(row["accuracy_pct"])
+            comp.append(row["completeness_pct"])
+        per_scene.append(row)
+        within += s_within
+        total += s_total
+    return {"style": style, "scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
+            "within_1pct": within / total,
+            "accuracy_pct": float(np.mean(acc)) if acc else None,
+            "completeness_pct": float(np.mean(comp)) if comp else None,
+            "per_scene": per_scene}
+
+
+def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: ReconstructConfig,
+                     quiet: bool = True) -> dict:
+    """Depth of the reference view of the DTU pair (640x512 photos, 160x128 ground truth in mm).
+
+    The prediction at 640x512 is reduced to the ground truth's grid by the median of each 4x4 block.
+    """
+    from mvsformerpp.io.pfm import read_pfm
+
+    pair_dir, out = Path(pair_dir), Path(out_dir)
+    scene = out / "input"
+    for d in ("images", "cams"):
+        (scene / d).mkdir(parents=True, exist_ok=True)
+    for i in (0, 1):
+        shutil.copyfile(pair_dir / f"rect_{i + 1:03d}_0_r5000.png", scene / "images" / f"{i:08d}.png")
+        shutil.copyfile(pair_dir / f"{i:08d}_cam.txt", scene / "cams" / f"{i:08d}_cam.txt")
+    (scene / "pair.txt").write_text("2\n0\n1 1 1.0\n1\n1 0 1.0\n")
+    cfg = dataclasses.replace(config, num_views=2, max_size=640, fusion="none")
+    reconstruct(scene, out / "recon", cfg, quiet=quiet)
+    rows = {}
+    for i in (0, 1):
+        gt = read_pfm(pair_dir / f"depth_map_{i:04d}.pfm")
+        est = read_pfm(out / "recon" / "depth_est" / f"{i:08d}.pfm")
+        h, w = gt.shape
+        est = np.median(est[: 4 * h, : 4 * w].reshape(h, 4, w, 4).transpose(0, 2, 1, 3).reshape(h, w, 16), -1)
+        valid = gt > 0
+        err = np.abs(est[valid] - gt[valid])
+        rows[f"view{i}"] = {"within_4mm": float((err < 4).mean()), "within_8mm": float((err < 8).mean()),
+                            "mae_mm": float(err.mean()), "valid_pixels": int(valid.sum())}
+    return {"within_4mm": float(np.mean([r["within_4mm"] for r in rows.values()])),
+            "within_8mm": float(np.mean([r["within_8mm"] for r in rows.values()])), **rows}
+
+
+def temple_quality(out_dir: str | Path, config: ReconstructConfig | None = None, quiet: bool = True) -> dict:
+    """Reconstruct the bundled temple (the demo's settings unless ``config``) and check the cloud."""
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo
+
+    summary = run_demo(out_dir, config or DEMO_CONFIG, quiet=quiet)
+    return {**temple_cloud_metrics(Path(out_dir) / "fused.ply"), "views": summary["views"],
+            "depth_s": summary["timings"]["depth_s"]}
+
+
+def temple_cloud_metrics(ply: str | Path) -> dict:
+    """Points of a temple cloud, the share inside the README's bounding box, and the mean share (over the
+    16 photos) of the points in front of a camera and inside its image that fall on the object."""
+    from scipy.ndimage import binary_dilation
+
+    from mvsformerpp.io.images import read_image
+    from mvsformerpp.io.middlebury import find_par_file, read_bounding_box, read_par
+    from mvsformerpp.io.ply import ply_points, read_ply
+    from mvsformerpp.pipelines.demo import temple_dir
+
+    pts = ply_points(read_ply(ply)).astype(np.float64)
+    box = read_bounding_box(temple_dir())
+    inside = np.all((pts >= box[0]) & (pts <= box[1]), axis=1) if len(pts) else np.zeros(0, bool)
+    on_object = []
+    for name, K, R, t in read_par(find_par_file(temple_dir())):
+        image = read_image(temple_dir() / name)
+        mask = binary_dilation(image.max(2) > DARK, iterations=3)
+        cam = pts @ R.T + t
+        front = cam[:, 2] > 0
+        uv = cam[front] @ K.T
+        u, v = np.floor(uv[:, 0] / uv[:, 2]).astype(np.int64), np.floor(uv[:, 1] / uv[:, 2]).astype(np.int64)
+        h, w = mask.shape
+        seen = (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        if seen.any():
+            on_object.append(float(mask[v[seen], u[seen]].mean()))
+    return {"points": int(len(pts)), "inside_box": float(inside.mean()) if len(pts) else 0.0,
+            "on_silhouette": float(np.mean(on_object)) if on_object else 0.0}
