@@ -92,7 +92,7 @@ def child(size: str, device: str, precision: str, views: int, count_flops: bool,
 
     H, W = (int(x) for x in size.split("x"))
     torch.manual_seed(0)
-    model = build_model("paper").eval().to(device)
+    model = build_model("paper").to(device).prepare_for_inference()
     imgs, proj, dv = synthetic_inputs(H, W, views, device)
     dtype = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}[precision]
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss

@@ -38,6 +38,9 @@ class FakeMVSModel(torch.nn.Module):
 
     def forward(self, imgs, proj_matrices, depth_values, temperatures, image_features=None, release_features=False):
         B, V, _, H, W = imgs.shape
+        # One reference view per forward: the network normalises its stage-1 positional encoding over
+        # the batch's depth range, so views with different ranges must never share a batch.
+        assert B == 1 and depth_values.shape[0] == 1
         self.forwards += 1
         if image_features is None:
             image_features = self.encode_images(imgs.flatten(0, 1))

@@ -73,3 +73,22 @@ def test_choose_long_side_respects_cap_and_memory():
     (bigger,) = plan_views(sizes, side + 64)
     assert bigger.canvas_width * bigger.canvas_height * 5 * BYTES_PER_PIXEL_PER_VIEW > budget
     assert choose_long_side(sizes, 5, None, 1.0) == 64  # floor
+
+
+def test_depth_upsampling_invents_no_depth_between_surfaces():
+    """A step from 1 m to 3 m (an occlusion edge) stays a step at the original size, with each pixel's
+    confidence from the same side as its depth; a smooth slanted surface is interpolated, not staircased."""
+    (p,) = plan_views([(400, 300)], 200)
+    v, u = torch.meshgrid(torch.arange(256.0), torch.arange(256.0), indexing="ij")
+    step = torch.where(u < 77.5, 1.0, 3.0)
+    conf = torch.where(u < 77.5, 0.9, 0.2)
+    depth, confidence = p.depth_to_original(step, conf)
+    assert depth.shape == (300, 400) and confidence.shape == (300, 400)
+    assert set(depth.unique().tolist()) == {1.0, 3.0}
+    torch.testing.assert_close(confidence, torch.where(depth == 1.0, 0.9, 0.2))
+    assert (depth[:, :150] == 1.0).all() and (depth[:, 160:] == 3.0).all()  # the edge near u = 155
+    # A steep slanted surface (depth steps of 3-10% per canvas pixel): bilinear, as canvas_to_original.
+    slanted = 0.3 + 0.03 * u + 0.01 * v
+    depth, _ = p.depth_to_original(slanted, conf)
+    torch.testing.assert_close(depth, p.canvas_to_original(slanted))
+    assert len(depth[0].unique()) > 300  # not a staircase of the 200 canvas columns

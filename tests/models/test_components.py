@@ -91,7 +91,15 @@ def test_frustoconical_coordinates_in_unit_cube_and_encoding_range():
     assert c.min() >= 0 and c.max() <= 1
     assert c[:, 0].max() > 0.99 and c[:, 2].min() < 1e-3  # min-max normalised: the range is used
     pe = sine_encoding_3d(c, 8)
-    assert pe.shape == (1, 24, 32, 8, 10) and pe.abs().max() <= 1
+    assert pe.shape == (1, 24, 32, 8, 10)
+    # Channel 2i of axis a is sin(4 c_a w_i) and 2i+1 its cos, w_i = 10000^(-2i/8), written out here:
+    # the depth axis (a = 2) at one voxel, and the two frequencies of the x axis at another.
+    d, y, x = 7, 3, 5
+    for i in range(4):
+        w = 10000.0 ** (-2 * i / 8)
+        torch.testing.assert_close(pe[0, 16 + 2 * i, d, y, x], torch.sin(4 * c[0, 2, d, y, x] * w))
+        torch.testing.assert_close(pe[0, 16 + 2 * i + 1, d, y, x], torch.cos(4 * c[0, 2, d, y, x] * w))
+        torch.testing.assert_close(pe[0, 2 * i, 0, 0, 0], torch.sin(4 * c[0, 0, 0, 0, 0] * w))
 
 
 def test_2d_position_encoding_is_resolution_normalised():
@@ -235,45 +243,78 @@ def _randomise_batchnorm(model, seed=5):
             m.bias.data.copy_(torch.rand(n, generator=g) - 0.5)
 
 
-def test_inference_fast_paths_match_the_plain_modules():
-    """Without autograd, eval runs rewritten paths (BatchNorm folded into convolutions, depth-banded 2-D
-    convolutions for the 3-D U-Nets, the last FPN level in row bands, in-place buffers, features freed
-    as soon as they are used); with autograd the plain module composition runs. Both must agree, at
-    an odd size and with bands small enough that the full-resolution level takes several of them."""
-    from mvsformerpp.models import fpn
+def _batch_with_two_cameras_and_ranges(H, W):
+    """Two samples with different intrinsics and depth ranges (the fast paths must not mix them)."""
+    imgs, proj, dv = _random_batch(2, 3, H, W)
+    for P in proj.values():
+        P[1, :, 1, :2, :3] *= 0.8
+    return imgs, proj, torch.tensor([[400.0, 900.0], [250.0, 1400.0]])
+
+
+def _spy(monkeypatch, owner, name):
+    calls = []
+    original = getattr(owner, name)
+
+    def spy(*args, **kwargs):
+        calls.append(1)
+        return original(*args, **kwargs)
+
+    monkeypatch.setattr(owner, name, spy)
+    return calls
+
+
+@pytest.mark.parametrize("case", ["b1", "b2_cameras_and_ranges", "bf16"])
+def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
+    """The prepared forms (BatchNorm folded, depth-banded 2-D convolutions for the 3-D U-Nets, the last
+    FPN level in row bands, in-place buffers, features freed as soon as they are used) compute the
+    plain modules' function: at an odd multiple of 32 (96x160), with bands small enough that the
+    full-resolution level takes several of them, for two samples with different cameras and depth
+    ranges, and under CPU bf16 autocast (compared with fp32, as bf16 rounds differently)."""
+    from mvsformerpp.models import fpn, inference, regularization
 
     model = build_model("lite").eval()
     _randomise_batchnorm(model)
-    imgs, proj, dv = _random_batch(1, 3, 96, 160)
-    plain = model(imgs, proj, dv)  # grad enabled: the reference composition
-    default = fpn.FPNDecoder._last_level_inference.__defaults__
-    fpn.FPNDecoder._last_level_inference.__defaults__ = (4 * 64 * 160 * 8,)  # bands of 8 rows
-    try:
-        with torch.no_grad():
-            fast = model(imgs, proj, dv)
-    finally:
-        fpn.FPNDecoder._last_level_inference.__defaults__ = default
+    H, W = 96, 160
+    imgs, proj, dv = _batch_with_two_cameras_and_ranges(H, W) if case == "b2_cameras_and_ranges" \
+        else _random_batch(1, 3, H, W)
+    with torch.no_grad():
+        plain = model(imgs, proj, dv)  # not prepared: the plain modules
+    monkeypatch.setattr(fpn, "BAND_BYTES", 4 * 64 * W * 8)  # bands of 8 rows
+    banded = _spy(monkeypatch, regularization, "_unet_banded")
+    decoder = _spy(monkeypatch, fpn.FPNDecoder, "_forward_prepared")
+    assert model.prepare_for_inference() is model
+    with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "bf16"):
+        fast = model(imgs, proj, dv)
+    assert inference.is_prepared(model)
+    assert len(banded) == 3 and len(decoder) == len(imgs) * imgs.shape[1]  # the prepared forms ran
+    if case == "bf16":
+        assert fast["depth"].dtype == torch.float32
+        rel = (fast["depth"] - plain["depth"]).abs() / plain["depth"]
+        assert rel.median() < 1e-3 and rel.max() < 0.05
+        return
     for s in range(1, 5):
-        a, b = fast[f"stage{s}"]["prob_volume_pre"], plain[f"stage{s}"]["prob_volume_pre"].detach()
+        a, b = fast[f"stage{s}"]["prob_volume_pre"], plain[f"stage{s}"]["prob_volume_pre"]
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-4 * b.abs().max().item()), s
-    assert torch.allclose(fast["depth"], plain["depth"].detach(), rtol=1e-5)
-    assert torch.allclose(fast["photometric_confidence"], plain["photometric_confidence"].detach(), atol=1e-5)
+    assert torch.allclose(fast["depth"], plain["depth"], rtol=1e-5)
+    assert torch.allclose(fast["photometric_confidence"], plain["photometric_confidence"], atol=1e-5)
 
 
-def test_banded_decoder_level_matches_upsample_then_convolve():
+def test_banded_decoder_level_matches_upsample_then_convolve(monkeypatch):
     """The row-banded last FPN level equals out3(up2(t2) + inner3(conv01)) for every band layout,
     including bands of a few rows and a last band that is shorter than the others."""
-    from mvsformerpp.models.fpn import FPNDecoder
+    from mvsformerpp.models import fpn
 
     torch.manual_seed(0)
-    dec = FPNDecoder().eval()
+    dec = fpn.FPNDecoder().eval()
     _randomise_batchnorm(dec)
     t2, conv01 = torch.randn(2, 64, 9, 13), torch.randn(2, 8, 18, 26)
     ref = dec.out3(torch.nn.functional.interpolate(t2, scale_factor=2, mode="bilinear", align_corners=True)
                    + dec.inner3(conv01)).detach()
     with torch.no_grad():
+        last = dec.build_inference_forms()["last"]
         for rows in (4, 5, 18, 64):
-            out = dec._last_level_inference(t2, conv01, band_bytes=4 * 64 * 26 * rows)
+            monkeypatch.setattr(fpn, "BAND_BYTES", 4 * 64 * 26 * rows)
+            out = dec._last_level_prepared(last, t2, conv01)
             assert torch.allclose(out, ref, atol=1e-5), rows
 
 
@@ -292,21 +333,45 @@ def test_precomputed_features_give_the_same_output_and_can_be_released():
             out["photometric_confidence"], ref["photometric_confidence"])
 
 
-def test_inference_weight_caches_follow_the_model_and_its_updates():
-    """Folded/banded weights are cached per module and keyed by parameter versions: a second model
-    (even one whose tensors reuse the first one's memory) and in-place weight updates are seen."""
+def test_prepared_forms_are_never_stale():
+    """Weights written through ``.data`` (an EMA update) do not bump tensor versions, so no cache keyed
+    on them can notice; the prepared forms are compared with their source tensors instead. Every kind of
+    change gives the output of a fresh model with the new weights, and ``train()``/``load_state_dict``
+    return the model to its plain modules (training forwards and gradients as usual)."""
+    from mvsformerpp.models import inference
+
     imgs, proj, dv = _random_batch(1, 3, 64, 96)
-    for seed in (11, 12):
+
+    def lite(seed):
         torch.manual_seed(seed)
         model = build_model("lite").eval()
         _randomise_batchnorm(model, seed)
+        return model
+
+    def logits(model):
         with torch.no_grad():
-            fast = model(imgs, proj, dv)["stage4"]["prob_volume_pre"]
-        plain = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].detach()
-        assert torch.allclose(fast, plain, atol=1e-4 * plain.abs().max().item())
-        with torch.no_grad():
-            model.fusions[3].cost_reg.conv1.conv.weight.mul_(-1)
-            fast = model(imgs, proj, dv)["stage4"]["prob_volume_pre"]
-        plain = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].detach()
-        assert torch.allclose(fast, plain, atol=1e-4 * plain.abs().max().item())
-        del model
+            return model(imgs, proj, dv)["stage4"]["prob_volume_pre"]
+
+    model, other = lite(11).prepare_for_inference(), lite(12)
+    expected = logits(other)
+    tol = 1e-4 * expected.abs().max().item()
+    before = logits(model)
+    assert not torch.allclose(before, expected, atol=tol)  # the two models really differ
+    for p, q in zip(model.state_dict().values(), other.state_dict().values()):  # EMA with decay 0
+        p.data.copy_(q)
+    assert torch.allclose(logits(model), expected, atol=tol)
+    assert not inference.is_prepared(model)  # the forms were dropped, not silently kept
+
+    model.prepare_for_inference()
+    with torch.no_grad():
+        model.fusions[3].cost_reg.conv1.conv.weight.mul_(-1)  # an in-place update
+    other.fusions[3].cost_reg.conv1.conv.weight.data.mul_(-1)
+    assert torch.allclose(logits(model), logits(other), atol=tol)
+
+    model.prepare_for_inference().load_state_dict(lite(13).state_dict())
+    assert not inference.is_prepared(model)
+    model.prepare_for_inference().train()
+    assert not inference.is_prepared(model) and model.training
+    loss = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].square().mean()
+    loss.backward()
+    assert model.fusions[3].cost_reg.conv1.conv.weight.grad is not None

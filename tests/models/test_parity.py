@@ -45,7 +45,7 @@ def test_reproduces_official_eval_and_train_outputs(paper_model, monkeypatch):
     imgs, proj, depth_values, tmp = fixture_inputs(fx)
     model = paper_model
     model.load_state_dict(rule_state_dict(model), strict=True)
-    model.eval()
+    model.prepare_for_inference()  # eval mode: the network as inference runs it
     with torch.no_grad():
         out = model(imgs, proj, depth_values, tmp)
     errors = {}

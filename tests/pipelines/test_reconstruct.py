@@ -299,3 +299,32 @@ def test_unavailable_device_is_refused(scene4, tmp_path):
         pytest.skip("this machine has CUDA")
     with pytest.raises(InputError, match="CUDA is not available"):
         reconstruct(scene4, tmp_path / "out", dataclasses.replace(FAST, device="cuda"), quiet=True, model=fake_model())
+
+
+def test_paper_settings_reach_the_run(scene4, tmp_path):
+    """--interval-scale widens every view's depth range from its minimum (not an explicit --depth-range);
+    --num-depth, --temperatures and the paper's fusion presets reach the configuration."""
+    import argparse
+
+    from mvsformerpp.cli.reconstruct import add_model_args, add_run_args, config_from_args
+    from mvsformerpp.pipelines.reconstruct import _fusion_config, load_input, prepare_scene
+
+    p = argparse.ArgumentParser()
+    add_model_args(p, "lite")
+    add_run_args(p)
+    args = p.parse_args(["--interval-scale", "1.06", "--num-depth", "128", "--temperatures", "4", "4", "3", "1",
+                         "--fusion", "dtu"])
+    cfg = config_from_args(args)
+    assert (cfg.interval_scale, cfg.num_depth, cfg.temperatures, cfg.fusion) == (1.06, 128, (4.0, 4.0, 3.0, 1.0), "dtu")
+    dtu = _fusion_config("dtu")
+    assert (dtu.method, dtu.conf_threshold, dtu.disp_threshold, dtu.num_consistent) == ("gipuma", 0.5, 0.1, 2)
+    assert _fusion_config("tnt_advanced").num_src_views == 15
+    own = load_input(scene4, tmp_path)
+    widened = prepare_scene(own, dataclasses.replace(FAST, interval_scale=1.06))
+    for a, b in zip(own.views, widened.views):
+        assert b.depth_min == a.depth_min
+        assert b.depth_max == pytest.approx(a.depth_min + 1.06 * (a.depth_max - a.depth_min), rel=1e-12)
+    fixed = prepare_scene(own, dataclasses.replace(FAST, interval_scale=1.06, depth_range=(0.4, 0.9)))
+    assert all((v.depth_min, v.depth_max) == (0.4, 0.9) for v in fixed.views)
+    with pytest.raises(InputError, match="interval-scale"):
+        dataclasses.replace(FAST, interval_scale=0.0)

@@ -10,13 +10,15 @@ import resource, sys, torch
 from mvsformerpp.utils.allocator import tune_allocator
 if sys.argv[1] == "tuned":
     assert tune_allocator()
+from mvsformerpp.models import inference
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
-enc, dec = FPNEncoder().eval(), FPNDecoder().eval()
+enc, dec = FPNEncoder(), FPNDecoder()
+net = inference.prepare(torch.nn.ModuleList([enc, dec]))
 x = torch.randn(1, 3, 256, 320)
 def faults():
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 counts = []
-with torch.no_grad():
+with torch.no_grad(), inference.session(net):
     for _ in range(4):
         before = faults()
         dec(*enc(x))

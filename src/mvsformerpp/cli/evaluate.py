@@ -231,7 +231,9 @@ def register(subparsers) -> None:
     p.add_argument("--crop", help="crop volume JSON ({scene}.json)")
     p.add_argument("--alignment", "--transform", dest="alignment",
                    help="4x4 transform text file applied to the prediction ({scene}_trans.txt)")
-    p.add_argument("--refine", action="store_true", help="refine the alignment with rigid ICP before scoring")
+    p.add_argument("--refine", action="store_true",
+                   help="refine the alignment before scoring as the official toolbox does (point-to-point ICP "
+                        "with scale, three rounds)")
     p.add_argument("--json", metavar="OUT.json", help="write the metrics")
     _view_args(p)
     p.set_defaults(func=_cmd_tnt)

@@ -40,8 +40,17 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                         "auto (MAX when the second number is larger; default)")
     g.add_argument("--max-images", type=int, metavar="N",
                    help="use only N overlapping views: the first view and its best neighbours")
-    g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "none"), default=_DEFAULT.fusion,
-                   help=f"fusion filter (default: {_DEFAULT.fusion}); 'none' writes the depth maps only")
+    g.add_argument("--interval-scale", type=float, default=_DEFAULT.interval_scale, metavar="S",
+                   help="widen each view's depth range from its minimum by S (the reference's interval_scale; "
+                        "the paper's DTU and Tanks-and-Temples runs use 1.06); not applied to --depth-range")
+    g.add_argument("--num-depth", type=int, default=_DEFAULT.num_depth, metavar="N",
+                   help=f"depth planes of the range, written to the output cams (default: {_DEFAULT.num_depth})")
+    g.add_argument("--temperatures", type=float, nargs=4, default=_DEFAULT.temperatures, metavar="T",
+                   help="per-stage softmax temperatures of the depth readout (default: 5 5 5 1, as the paper)")
+    g.add_argument("--fusion", choices=("normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced",
+                                        "none"), default=_DEFAULT.fusion,
+                   help=f"fusion preset (default: {_DEFAULT.fusion}; dtu, tnt_intermediate and tnt_advanced are the "
+                        "paper's settings, see 'mvsformerpp fuse'); 'none' writes the depth maps only")
     g.add_argument("--mask-dir", metavar="DIR",
                    help="object masks applied before fusion: one per photo, named like it or by view index "
                         "(DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
@@ -68,7 +77,9 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
         depth_format=args.depth_format,
-        fusion=args.fusion, cache_mb=args.cache_mb, output_resolution=args.output_resolution, mask_dir=args.mask_dir,
+        fusion=args.fusion, cache_mb=args.cache_mb, interval_scale=args.interval_scale, num_depth=args.num_depth,
+        temperatures=tuple(args.temperatures),
+        output_resolution=args.output_resolution, mask_dir=args.mask_dir,
         sfm=SfMConfig(camera_model=args.camera_model, single_camera=args.single_camera, matcher=args.matcher,
                       max_image_size=args.sfm_max_size),
     )

@@ -3,7 +3,8 @@
 Mirrors the official toolbox (``python_toolbox/evaluation``, Knapitsch et al. 2017) without Open3D:
 
 1. the reconstruction is mapped into the ground-truth frame by the given 4x4 ``alignment``
-   (the toolbox's ``{scene}_trans.txt``); optionally refined by rigid ICP (``refine``, :mod:`.icp`;
+   (the toolbox's ``{scene}_trans.txt``); optionally refined as the toolbox does (``refine``: three
+   rounds of point-to-point ICP with scale, :mod:`.icp`;
    the toolbox's camera-trajectory registration is not reproduced: the reconstruction must use the
    benchmark's camera poses, as submissions do);
 2. both clouds are cropped by the scene's crop volume (``{scene}.json``, an Open3D
@@ -141,20 +142,16 @@ def evaluate_tnt_points(
 ) -> TnTResult:
     """The toolbox protocol on arrays (see the module docstring); voxel size = threshold / 2.
 
-    refine: before scoring, refine the alignment with rigid ICP (:func:`.icp.icp_refine`) at
-    correspondence distances 10, 4 and 1.5 thresholds, on the cropped clouds downsampled to the
-    threshold; the prediction must already be roughly aligned.
+    refine: before scoring, refine the alignment as the toolbox does (:func:`.icp.icp_refine`:
+    point-to-point ICP with scale over its three rounds, on the cropped clouds); the prediction must
+    already be roughly aligned (within about 80 thresholds).
     """
     pred = check_points(pred, "prediction")
     gt = check_points(gt, "ground truth")
     if alignment is not None:
         pred = apply_transform(pred, np.asarray(alignment, dtype=np.float64))
     if refine:
-        src, dst = (pred, gt) if crop is None else (pred[crop.contains(pred)], gt[crop.contains(gt)])
-        if len(src) >= 3 and len(dst) >= 3:
-            T = icp_refine(voxel_downsample(src, threshold), voxel_downsample(dst, threshold),
-                           max_corr=(10 * threshold, 4 * threshold, 1.5 * threshold))
-            pred = apply_transform(pred, T)
+        pred = apply_transform(pred, icp_refine(pred, gt, threshold, crop=None if crop is None else crop.contains))
     if crop is not None:
         pred, gt = pred[crop.contains(pred)], gt[crop.contains(gt)]
         if len(pred) == 0:

@@ -84,6 +84,59 @@ class ViewResize:
         kw = {"align_corners": False} if mode == "bilinear" else {}
         return F.interpolate(x[None, None].float(), size=(self.height, self.width), mode=mode, **kw)[0, 0]
 
+    def depth_to_original(self, depth: torch.Tensor, confidence: torch.Tensor,
+                          rel_step: float = 0.01) -> tuple[torch.Tensor, torch.Tensor]:
+        """Canvas depth and confidence ``[Hc, Wc]`` -> ``[H, W]`` without inventing depths between surfaces.
+
+        A jump between two neighbouring canvas pixels is a depth discontinuity when it exceeds
+        ``rel_step`` of their depth and twice each adjacent jump along the same line (a slanted surface
+        changes depth by similar steps, an occlusion edge by one large step). Each output pixel
+        interpolates bilinearly (half-pixel centres) between its four nearest canvas pixels when no
+        discontinuity and no missing depth (<= 0) lies between them, and otherwise takes the nearest
+        one: at an occlusion edge every depth is one the network estimated, never a mix of foreground
+        and background. The confidence follows the same choice per pixel.
+        """
+        d = depth[: self.resized_height, : self.resized_width].float()
+        c = confidence[: self.resized_height, : self.resized_width].float()
+        if (self.resized_width, self.resized_height) == (self.width, self.height):
+            return d, c
+        # cut[0][i, j]: discontinuity between (i, j) and (i, j+1); cut[1][i, j]: between (i, j) and (i+1, j)
+        cut = [_discontinuities(d, rel_step), _discontinuities(d.T, rel_step).T]
+
+        def taps(n_in: int, n_out: int):
+            x = ((torch.arange(n_out, dtype=torch.float64, device=d.device) + 0.5) * (n_in / n_out) - 0.5)
+            x = x.clamp(0, n_in - 1)
+            i0 = x.floor().long().clamp(max=n_in - 1)
+            return i0, (i0 + 1).clamp(max=n_in - 1), (x - i0).float()
+
+        y0, y1, fy = taps(self.resized_height, self.height)
+        x0, x1, fx = taps(self.resized_width, self.width)
+        d_out = d.new_empty(self.height, self.width)
+        c_out = c.new_empty(self.height, self.width)
+        for r in range(0, self.height, 256):  # bands of rows bound the working memory
+            rows = slice(r, r + 256)
+            ya, yb, xa, xb = y0[rows, None], y1[rows, None], x0[None, :], x1[None, :]
+            wy, wx = fy[rows, None], fx[None, :]
+            corners = [(ya, xa, (1 - wy) * (1 - wx)), (ya, xb, (1 - wy) * wx), (yb, xa, wy * (1 - wx)),
+                       (yb, xb, wy * wx)]
+            dk = torch.stack([d[yy, xx].expand(-1, self.width) for yy, xx, _ in corners])
+            ck = torch.stack([c[yy, xx].expand(-1, self.width) for yy, xx, _ in corners])
+            wk = torch.stack([w.expand(dk.shape[1:]) for _, _, w in corners])
+            smooth = (dk.min(0).values > 0) & ~(cut[0][ya, xa] | cut[0][yb, xa] | cut[1][ya, xa] | cut[1][ya, xb])
+            nearest = wk.argmax(0, keepdim=True)
+            d_out[rows] = torch.where(smooth, (dk * wk).sum(0), dk.gather(0, nearest)[0])
+            c_out[rows] = torch.where(smooth, (ck * wk).sum(0), ck.gather(0, nearest)[0])
+        return d_out, c_out
+
+
+def _discontinuities(d: torch.Tensor, rel_step: float) -> torch.Tensor:
+    """[h, w] bool: whether the jump from each pixel to its right neighbour is a depth discontinuity
+    (see :meth:`ViewResize.depth_to_original`); False past the last pixel."""
+    jump = (d[:, 1:] - d[:, :-1]).abs()
+    zero = jump.new_zeros(d.shape[0], 1)
+    before, after = torch.cat([zero, jump[:, :-1]], 1), torch.cat([jump[:, 1:], zero], 1)
+    cut = (jump > rel_step * torch.minimum(d[:, 1:], d[:, :-1]).abs()) & (jump > 2 * torch.maximum(before, after))
+    return torch.cat([cut, torch.zeros_like(zero, dtype=torch.bool)], 1)
 
 def round_up(x: int, multiple: int = MULTIPLE) -> int:
     return int(math.ceil(x / multiple) * multiple)

@@ -23,6 +23,7 @@ import torch
 from mvsformerpp.inference.feature_cache import FeatureCache
 from mvsformerpp.inference.resolution import ViewResize
 from mvsformerpp.io.scene import Scene
+from mvsformerpp.models import inference
 from mvsformerpp.models.inputs import normalize, stage_projections
 
 PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
@@ -56,6 +57,7 @@ class SceneInference:
     image_features=..., release_features=True)`` returns ``depth`` and ``photometric_confidence``
     ``[1,H,W]`` (the features passed are a concatenated copy made for that call, which the network may
     empty once it no longer needs them).
+    The runner prepares ``model`` for inference (:mod:`mvsformerpp.models.inference`).
     ``load_image(i)`` returns view ``i``'s uint8 ``[H,W,3]`` photo at its original size.
     ``cache_bytes=0`` disables the cache: ``forward`` then encodes every image of every view set.
     """
@@ -66,7 +68,7 @@ class SceneInference:
                  output_resolution: str = "original"):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
-        self.model = model.eval()
+        self.model = inference.prepare(model)  # eval mode with the inference forms built, once
         self.scene = scene
         self.plans = plans
         self.load_image = load_image
@@ -144,8 +146,7 @@ class SceneInference:
             depth = plan.canvas_to_working(out["depth"][0].float())
             conf = plan.canvas_to_working(out["photometric_confidence"][0].float())
         else:
-            depth = plan.canvas_to_original(out["depth"][0].float(), mode="bilinear")
-            conf = plan.canvas_to_original(out["photometric_confidence"][0].float(), mode="bilinear")
+            depth, conf = plan.depth_to_original(out["depth"][0], out["photometric_confidence"][0])
         depth = torch.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0).clamp_(min=0.0)
         conf = torch.nan_to_num(conf, nan=0.0).clamp_(0.0, 1.0)
         return ViewResult(depth=depth.cpu().numpy().astype(np.float32),

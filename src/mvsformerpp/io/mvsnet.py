@@ -53,7 +53,7 @@ DepthFormat = Literal["auto", "interval", "max", "none"]
 DEFAULT_NUM_DEPTH = 192
 __all__ = [
     "DEFAULT_NUM_DEPTH", "DepthFormat", "MVSNetCam", "Pairs", "cam_files", "format_cam", "format_pair",
-    "image_scale_factor", "load_mvsnet_scene", "match_image_size", "read_cam", "read_pair", "report_scaling",
+    "image_scale_factor", "load_mvsnet_scene", "read_cam", "read_pair", "report_scaling",
     "set_neighbors", "view_from_cam", "write_cam", "write_mvsnet_scene", "write_pair",
 ]
 _CAM_RE = re.compile(r"^(\d+)_cam\.txt$")
@@ -242,16 +242,6 @@ def cam_files(cam_dir: str | Path) -> dict[int, Path]:
         if m and p.is_file():
             out[int(m.group(1))] = p
     return dict(sorted(out.items()))
-
-
-def match_image_size(K: np.ndarray, width: int, height: int, where: Path) -> np.ndarray:
-    """As :func:`image_scale_factor`, returning ``K`` for the photo (scaled where needed)."""
-    s = image_scale_factor(K, width, height, where)
-    if s == 1.0:
-        return K
-    Ks = np.array(K, dtype=np.float64)
-    Ks[:2] *= s
-    return Ks
 
 
 def image_scale_factor(K: np.ndarray, width: int, height: int, where: Path) -> float:

@@ -74,12 +74,6 @@ class Scene:
     def __len__(self) -> int:
         return len(self.views)
 
-    def index(self, name: str) -> int:
-        for i, v in enumerate(self.views):
-            if v.name == name:
-                return i
-        raise KeyError(name)
-
     def validate(self, require_depth_range: bool = True) -> Scene:
         """Check the scene is usable for MVS; raise :class:`InputError` naming the problem."""
         where = self.root

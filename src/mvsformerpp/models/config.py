@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 
 @dataclass(frozen=True)
@@ -46,12 +46,9 @@ class ModelConfig:
     """Per-stage weights of the training loss (``dlossw``); training configs may override them."""
     attention_backend: str = "sdpa"
     """Softmax attention kernel: sdpa | flash | eager | auto."""
-    extra: dict = field(default_factory=dict, compare=False)
 
     def to_dict(self) -> dict:
-        d = dataclasses.asdict(self)
-        d.pop("extra")
-        return d
+        return dataclasses.asdict(self)
 
     @classmethod
     def from_dict(cls, d: dict) -> ModelConfig:
@@ -81,7 +78,7 @@ def get_config(preset: str = "paper", **overrides) -> ModelConfig:
 
 
 # Fields that change only how a network runs or trains, not which weights fit it.
-_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", "extra")
+_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit")
 
 
 def architecture(config: ModelConfig) -> dict:

@@ -10,8 +10,10 @@ from torch import nn
 from torch.utils.checkpoint import checkpoint
 
 from mvsformerpp.geometry.warping import homography_warp, projection_4x4, warp_rays
+from mvsformerpp.models import inference
 from mvsformerpp.models.cvt import CostVolumeTransformer
-from mvsformerpp.models.layers import ConvBnReLU, fold_batchnorm
+from mvsformerpp.models.inference import fused_conv_bn
+from mvsformerpp.models.layers import ConvBnReLU
 from mvsformerpp.models.regularization import CostRegNet, CostRegNet3D
 
 
@@ -22,9 +24,9 @@ def group_correlation(ref: torch.Tensor, warped: torch.Tensor, groups: int, out:
         return torch.mul(ref[:, :, None], warped, out=out)
     cg = C // groups
     r, w = ref.reshape(B, groups, cg, 1, H, W), warped.reshape(B, groups, cg, D, H, W)
-    if out is None or torch.is_grad_enabled():
-        return torch.mean(r * w, 2, out=out)
-    # inference: accumulate channel by channel into out (no [B, C, D, H, W] product)
+    if out is None:
+        return torch.mean(r * w, 2)
+    # accumulate channel by channel into out (no [B, C, D, H, W] product; no autograd)
     torch.mul(r[:, :, 0], w[:, :, 0], out=out)
     for c in range(1, cg):
         out.addcmul_(r[:, :, c], w[:, :, c])
@@ -56,24 +58,20 @@ def depth_from_logits(logits: torch.Tensor, hypotheses: torch.Tensor, temperatur
     return depth, prob.max(dim=1)[0]
 
 
-def visibility(vis: nn.Sequential, entropy: torch.Tensor) -> torch.Tensor:
-    """Run the visibility net. In inference without autograd, each conv-BatchNorm-ReLU is one
-    convolution with the BatchNorm folded in and an in-place ReLU, on channels-last maps, which oneDNN
-    runs about twice as fast at these thin full-resolution sizes (same numbers up to float rounding)."""
-    if vis.training or torch.is_grad_enabled():
+def visibility(vis: nn.Sequential, entropy: torch.Tensor, forms: list | None = None) -> torch.Tensor:
+    """Run the visibility net; with its prepared ``forms`` (:meth:`StageNet.build_inference_forms`),
+    each conv-BatchNorm-ReLU is one convolution with the BatchNorm folded in and an in-place ReLU, on
+    channels-last maps, which oneDNN runs about twice as fast at these thin full-resolution sizes."""
+    if forms is None:
         return vis(entropy)
-    cl = torch.channels_last
     # A one-channel map is both NCHW and NHWC, and oneDNN then takes a slow NCHW kernel for the first
     # convolution; a zero second channel (with zero weights) makes the input unambiguously NHWC.
     B, _, H, W = entropy.shape
     x = entropy.new_zeros(B, H, W, 2)
     x[..., 0] = entropy[:, 0]
     x = x.permute(0, 3, 1, 2)
-    for i, layer in enumerate(vis[:3]):
-        w, b = fold_batchnorm(layer.conv.weight, layer.bn)
-        if i == 0:
-            w = torch.cat([w, torch.zeros_like(w)], 1)
-        x = F.conv2d(x.contiguous(memory_format=cl), w.contiguous(memory_format=cl), b, padding=1).relu_()
+    for w, b in forms:
+        x = F.conv2d(x.contiguous(memory_format=torch.channels_last), w, b, padding=1).relu_()
     return vis[3](x).sigmoid_().contiguous()
 
 
@@ -100,7 +98,8 @@ class StageNet(nn.Module):
             D = hypotheses.shape[1]
             # Hypotheses in chunks bound the warped-feature memory (full resolution: ~0.25 GB per view).
             step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
-            inplace = not torch.is_grad_enabled()  # inference: reuse buffers, no autograd to keep
+            inplace = inference.active()  # prepared inference: reuse buffers, no autograd to keep
+            vis_forms = inference.forms(self)
             volume_sum, vis_sum, spare = None, 0.0, None
             for v in range(1, features.shape[1]):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())
@@ -114,7 +113,7 @@ class StageNet(nn.Module):
                     else:
                         corr[:, :, d:d + step] = group_correlation(ref, warped, self.groups)
                     del warped
-                weight = visibility(self.vis, matching_entropy(corr))  # [B,1,H,W]
+                weight = visibility(self.vis, matching_entropy(corr), vis_forms)  # [B,1,H,W]
                 if volume_sum is None:
                     volume_sum = corr.mul_(weight[:, None]) if inplace else corr * weight[:, None]
                 else:
@@ -125,6 +124,16 @@ class StageNet(nn.Module):
             if inplace:
                 return volume_sum.div_(vis_sum[:, None].add_(1e-6))
             return volume_sum / (vis_sum[:, None] + 1e-6)
+
+    inference_sources = ("vis",)
+
+    def build_inference_forms(self) -> list:
+        """The visibility net's conv-BatchNorm pairs folded, channels-last; the first one reads a zero
+        second input channel (see :func:`visibility`)."""
+        forms = [fused_conv_bn(layer.conv, layer.bn) for layer in self.vis[:3]]
+        w, b = forms[0]
+        forms[0] = (torch.cat([w, torch.zeros_like(w)], 1).contiguous(memory_format=torch.channels_last), b)
+        return forms
 
     def forward(self, features, proj, hypotheses, temperature: float | None, coords=None) -> dict:
         return self.predict(self.cost_volume(features, proj, hypotheses), hypotheses, temperature, coords)

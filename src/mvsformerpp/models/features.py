@@ -10,6 +10,7 @@ from dataclasses import dataclass
 import torch
 import torch.nn.functional as F
 
+from mvsformerpp.models import inference
 from mvsformerpp.models.dinov2 import DinoVisionTransformer
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
 from mvsformerpp.models.sva import SideViewAttention
@@ -21,6 +22,8 @@ class ImageFeatures:
 
     vit_taps: 3 tensors [N, h*w, C_vit]; vit_hw: the DINOv2 token grid (h, w);
     fpn: encoder outputs (conv01 [N,8,H,W], conv11 [N,16,H/2,W/2], conv21 [N,32,H/4,W/4], conv31 [N,64,H/8,W/8]).
+    A dataclass of tensors: the feature cache concatenates and sizes it generically (``tree_cat``,
+    ``tree_nbytes``).
     """
 
     vit_taps: list[torch.Tensor]
@@ -30,26 +33,9 @@ class ImageFeatures:
     def __len__(self) -> int:
         return self.fpn[0].shape[0]
 
-    def index(self, idx) -> ImageFeatures:
-        """Select images (a list/tensor of indices or a slice)."""
-        if not isinstance(idx, slice):
-            idx = torch.as_tensor(idx, dtype=torch.long, device=self.fpn[0].device)
-        return ImageFeatures([t[idx] for t in self.vit_taps], self.vit_hw, tuple(t[idx] for t in self.fpn))
-
-    @staticmethod
-    def cat(items: list[ImageFeatures]) -> ImageFeatures:
-        return ImageFeatures(
-            [torch.cat([it.vit_taps[i] for it in items]) for i in range(len(items[0].vit_taps))],
-            items[0].vit_hw,
-            tuple(torch.cat([it.fpn[i] for it in items]) for i in range(len(items[0].fpn))),
-        )
-
     def release(self) -> None:
         """Drop the references to the tensors (the object is empty afterwards)."""
         self.vit_taps, self.fpn = [], ()
-
-    def nbytes(self) -> int:
-        return sum(t.numel() * t.element_size() for t in [*self.vit_taps, *self.fpn])
 
 
 def per_image(fn, count: int, *inputs: torch.Tensor, out: list[torch.Tensor] | None = None) -> list[torch.Tensor]:
@@ -92,9 +78,9 @@ def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.T
     frozen = not any(p.requires_grad for p in vit.parameters())
     with torch.set_grad_enabled(torch.is_grad_enabled() and not frozen):
         taps = vit.forward_taps(vit_imgs)
-    if encoder.training:
+    if not inference.active():
         fpn = tuple(encoder(imgs))
-    else:  # image by image: same result (running statistics), smaller peak memory
+    else:  # prepared inference: image by image, the same result with a smaller peak memory
         fpn = tuple(per_image(encoder, N, imgs))
     return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), fpn)
 
@@ -111,9 +97,9 @@ def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: Ima
     if vit_feat.shape[-2:] != conv31.shape[-2:]:
         vit_feat = F.interpolate(vit_feat, size=conv31.shape[-2:], mode="bilinear", align_corners=False)
     conv31 = conv31 + vit_feat
-    if decoder.training:  # BatchNorm batch statistics over all B*V images, as the reference
+    if not inference.active():  # in training, BatchNorm batch statistics over all B*V images
         stages = decoder(conv01, conv11, conv21, conv31)
-    else:  # image by image: the same result (running statistics) with a much smaller working set
+    else:  # prepared inference: image by image, the same result with a much smaller working set
         stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)
     return [s.reshape(B, V, *s.shape[1:]) for s in stages]
 

@@ -6,7 +6,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models.layers import ConvBnLeakyReLU, Swish, fold_batchnorm
+from mvsformerpp.models import inference
+from mvsformerpp.models.inference import fused_conv_bn
+from mvsformerpp.models.layers import ConvBnLeakyReLU, Swish
 
 
 class FPNEncoder(nn.Module):
@@ -28,42 +30,39 @@ class FPNEncoder(nn.Module):
         self.conv31 = ConvBnLeakyReLU(c3, c3, 3, 1, 1)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        if self.training or torch.is_grad_enabled():
-            block = _call
-        else:  # inference: BatchNorm folded, in-place activation, channels-last (same numbers)
-            block = _conv_bn_leaky_inference
-        conv01 = block(self.conv01, block(self.conv00, x))
-        conv11 = block(self.conv11, block(self.conv10, block(self.downsample1, conv01)))
-        conv21 = block(self.conv21, block(self.conv20, block(self.downsample2, conv11)))
-        conv31 = block(self.conv31, block(self.conv30, block(self.downsample3, conv21)))
+        forms = inference.forms(self)
+        if forms is None:
+            def block(name, y):
+                return getattr(self, name)(y)
+        else:  # prepared inference: BatchNorm folded, in-place activation, channels-last (same numbers)
+            def block(name, y):
+                return F.leaky_relu_(_conv_cl(y, forms[name], getattr(self, name).conv), 0.1)
+        conv01 = block("conv01", block("conv00", x))
+        conv11 = block("conv11", block("conv10", block("downsample1", conv01)))
+        conv21 = block("conv21", block("conv20", block("downsample2", conv11)))
+        conv31 = block("conv31", block("conv30", block("downsample3", conv21)))
         return conv01, conv11, conv21, conv31
 
+    def build_inference_forms(self) -> dict:
+        """Each block's convolution with its BatchNorm folded in, channels-last (:mod:`.inference`)."""
+        return {name: fused_conv_bn(block.conv, block.bn) for name, block in self.named_children()}
 
-def _call(module: nn.Module, x: torch.Tensor) -> torch.Tensor:
-    return module(x)
 
-
-# Inference (eval, no autograd) runs the pyramid in channels-last memory, where oneDNN's thin
-# convolutions at full resolution are about twice as fast, with each eval BatchNorm folded into its
-# convolution and activations in place: the same function up to float rounding.
+# Prepared inference runs the pyramid in channels-last memory, where oneDNN's thin convolutions at full
+# resolution are about twice as fast, with each eval BatchNorm folded into its convolution and
+# activations in place: the same function up to float rounding.
 _CL = torch.channels_last
+BAND_BYTES = 1 << 24
+"""Working-set size of one row band of the last decoder level in prepared inference."""
 
 
-def _conv_inference(x: torch.Tensor, conv: nn.Conv2d, bn: nn.Module | None = None) -> torch.Tensor:
-    """conv(x), then bn if given, as one channels-last convolution."""
-    if bn is None:
-        w, b = conv.weight, conv.bias
-    else:
-        w, b = fold_batchnorm(conv.weight, bn, bias=conv.bias)
-    return F.conv2d(x.contiguous(memory_format=_CL), w.contiguous(memory_format=_CL), b, conv.stride, conv.padding)
+def _conv_cl(x: torch.Tensor, wb: tuple, conv: nn.Conv2d) -> torch.Tensor:
+    """A prepared (weight, bias) applied with conv's stride and padding, channels-last."""
+    return F.conv2d(x.contiguous(memory_format=_CL), wb[0], wb[1], conv.stride, conv.padding)
 
 
-def _conv_bn_leaky_inference(block: ConvBnLeakyReLU, x: torch.Tensor) -> torch.Tensor:
-    return F.leaky_relu_(_conv_inference(x, block.conv, block.bn), 0.1)
-
-
-def _out_block_inference(block: nn.Sequential, x: torch.Tensor) -> torch.Tensor:
-    y = _conv_inference(x, block[0], block[1])
+def _out_block_cl(x: torch.Tensor, wb: tuple, block: nn.Sequential) -> torch.Tensor:
+    y = _conv_cl(x, wb, block[0])
     return y.mul_(torch.sigmoid(y))  # Swish
 
 
@@ -91,8 +90,9 @@ class FPNDecoder(nn.Module):
         self.out3 = out_block(c3, c0, 3)
 
     def forward(self, conv01, conv11, conv21, conv31) -> list[torch.Tensor]:
-        if not (self.training or torch.is_grad_enabled()):
-            return self._forward_inference(conv01, conv11, conv21, conv31)
+        forms = inference.forms(self)
+        if forms is not None:
+            return self._forward_prepared(forms, conv01, conv11, conv21, conv31)
         out0 = self.out0(conv31)
         t1 = _up2(conv31) + self.inner1(conv21)
         out1 = self.out1(t1)
@@ -101,41 +101,49 @@ class FPNDecoder(nn.Module):
         out3 = self.out3(_up2(t2) + self.inner3(conv01))
         return [out0, out1, out2, out3]
 
-    def _forward_inference(self, conv01, conv11, conv21, conv31) -> list[torch.Tensor]:
-        """forward in channels-last memory with in-place sums (see _conv_inference)."""
-        conv31 = conv31.contiguous(memory_format=_CL)
-        out0 = _out_block_inference(self.out0, conv31)
-        t1 = _up2(conv31).add_(_conv_inference(conv21, self.inner1))
-        out1 = _out_block_inference(self.out1, t1)
-        t2 = _up2(t1).add_(_conv_inference(conv11, self.inner2))
-        del t1
-        out2 = _out_block_inference(self.out2, t2)
-        return [out0, out1, out2, self._last_level_inference(t2, conv01)]
+    def build_inference_forms(self) -> dict:
+        """Folded, channels-last convolutions; the last level as the two weights of
+        :meth:`_last_level_prepared` (:mod:`.inference`)."""
+        f = {name: fused_conv_bn(getattr(self, name)[0], getattr(self, name)[1]) for name in ("out0", "out1", "out2")}
+        f.update({name: fused_conv_bn(getattr(self, name)) for name in ("inner1", "inner2")})
+        conv, inner = self.out3[0], self.inner3
+        w_inner = torch.einsum("ocij,ck->okij", conv.weight, inner.weight[:, :, 0, 0])
+        w, b = fused_conv_bn(conv, self.out3[1], weight=torch.cat([conv.weight, w_inner], 1))
+        f["last"] = (w[:, : conv.in_channels].contiguous(memory_format=_CL),
+                     w[:, conv.in_channels:].contiguous(memory_format=_CL), b, inner.bias.detach().view(1, -1, 1, 1))
+        return f
 
-    def _last_level_inference(self, t2: torch.Tensor, conv01: torch.Tensor, band_bytes: int = 1 << 24):
+    def _forward_prepared(self, forms, conv01, conv11, conv21, conv31) -> list[torch.Tensor]:
+        """forward in channels-last memory with in-place sums."""
+        conv31 = conv31.contiguous(memory_format=_CL)
+        out0 = _out_block_cl(conv31, forms["out0"], self.out0)
+        t1 = _up2(conv31).add_(_conv_cl(conv21, forms["inner1"], self.inner1))
+        out1 = _out_block_cl(t1, forms["out1"], self.out1)
+        t2 = _up2(t1).add_(_conv_cl(conv11, forms["inner2"], self.inner2))
+        del t1
+        out2 = _out_block_cl(t2, forms["out2"], self.out2)
+        return [out0, out1, out2, self._last_level_prepared(forms["last"], t2, conv01)]
+
+    @staticmethod
+    def _last_level_prepared(last: tuple, t2: torch.Tensor, conv01: torch.Tensor) -> torch.Tensor:
         """out3(up2(t2) + inner3(conv01)) in row bands, without any 64-channel full-resolution map.
 
         By linearity, Conv3x3(up2(t2) + inner3(conv01)) = Conv3x3(up2(t2) + b_inner) + Conv3x3'(conv01)
         with Conv3x3' = Conv3x3 o inner3 (c0 -> c0 channels), both zero-padded at the image border. The
         second term is one thin convolution over the whole image; the first runs in bands of output
-        rows, each needing its input rows and one halo row either side, whose upsampling is computed
-        directly (separable bilinear, align_corners=True). The eval BatchNorm is folded in and Swish
-        runs in place. The same numbers up to float rounding, a bounded working set.
+        rows (about BAND_BYTES each), each needing its input rows and one halo row either side, whose
+        upsampling is computed directly (separable bilinear, align_corners=True). The eval BatchNorm is
+        folded in and Swish runs in place. The same numbers up to float rounding, a bounded working set.
         """
-        conv, bn, inner = self.out3[0], self.out3[1], self.inner3
-        w_fold = torch.einsum("ocij,ck->okij", conv.weight, inner.weight[:, :, 0, 0])
-        w, b = fold_batchnorm(torch.cat([conv.weight, w_fold], 1), bn, bias=conv.bias)
-        cl = torch.channels_last  # oneDNN runs these thin full-resolution convolutions fastest in NHWC
-        w_up = w[:, : conv.in_channels].contiguous(memory_format=cl)
-        w_low = w[:, conv.in_channels:].contiguous(memory_format=cl)
-        out = F.conv2d(conv01.float().contiguous(memory_format=cl), w_low, b, padding=1)
+        w_up, w_low, b, inner_bias = last
+        out = F.conv2d(conv01.float().contiguous(memory_format=_CL), w_low, b, padding=1)
         t2 = t2.float().permute(0, 2, 3, 1).contiguous()  # NHWC rows: cheap to gather and interpolate
         N, _, H, W = out.shape
-        rows = max(4, band_bytes // (4 * w_up.shape[1] * W))
+        rows = max(4, BAND_BYTES // (4 * w_up.shape[1] * W))
         for r0 in range(0, H, rows):
             r1 = min(H, r0 + rows)
             a, z = max(r0 - 1, 0), min(r1 + 1, H)
-            up = _up2_rows_nhwc(t2, a, z, H, W).add_(inner.bias.view(1, -1, 1, 1))
+            up = _up2_rows_nhwc(t2, a, z, H, W).add_(inner_bias)
             # zero padding is right at the image border; elsewhere the halo rows are real and the
             # padded output rows are dropped
             band = out[:, :, r0:r1].add_(F.conv2d(up, w_up, padding=1)[:, :, r0 - a:r1 - a])

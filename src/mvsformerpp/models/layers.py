@@ -10,18 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-
-def fold_batchnorm(weight: torch.Tensor, bn: nn.Module, transposed: bool = False, bias=None):
-    """(weight, bias) of a convolution (bias optional) followed by an eval-mode BatchNorm, as one convolution.
-
-    Inference only (the result is detached): eval BatchNorm is the affine map
-    y = (x - mean) * gamma / sqrt(var + eps) + beta, which scales each output channel of the weight.
-    """
-    scale = bn.weight.detach() / torch.sqrt(bn.running_var + bn.eps)
-    shift = bn.bias.detach() - bn.running_mean * scale
-    bias = shift if bias is None else shift + bias.detach() * scale
-    shape = ((1, -1) if transposed else (-1, 1)) + (1,) * (weight.dim() - 2)
-    return weight.detach() * scale.view(shape), bias
+from mvsformerpp.models import inference
 
 
 class ConvBnLeakyReLU(nn.Module):
@@ -94,9 +83,9 @@ class Mlp(nn.Module):
 
 
 def gelu_(x: torch.Tensor) -> torch.Tensor:
-    """GELU (exact, erf form); in place where no autograd graph needs the input (inference), which
+    """GELU (exact, erf form); in place in a prepared inference forward (:mod:`.inference`), which
     spares a large allocation per transformer block."""
-    if torch.is_grad_enabled():
+    if not inference.active():
         return F.gelu(x)
     return torch.ops.aten.gelu_(x)
 
@@ -112,8 +101,9 @@ class LayerScale(nn.Module):
         return x * self.gamma
 
     def residual(self, x: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
-        """x + self(branch); without autograd in one pass (addcmul), sparing the scaled branch."""
-        if torch.is_grad_enabled():
+        """x + self(branch); in a prepared inference forward in one pass (addcmul), sparing the scaled
+        branch."""
+        if not inference.active():
             return x + self(branch)
         return torch.addcmul(x, branch, self.gamma)
 

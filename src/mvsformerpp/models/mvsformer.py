@@ -6,6 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from mvsformerpp.models import inference
 from mvsformerpp.models.config import ModelConfig
 from mvsformerpp.models.cost_volume import StageNet
 from mvsformerpp.models.cvt import frustum_coordinates
@@ -18,7 +19,27 @@ from mvsformerpp.models.sva import SideViewAttention
 
 
 class MVSFormerPP(nn.Module):
-    """MVSFormer++. Attribute names match the reference so official checkpoints load strictly."""
+    """MVSFormer++. Attribute names match the reference so official checkpoints load strictly.
+
+    The attributes and the paper's components (Cao, Ren, Fu, ICLR 2024):
+
+    * ``vit``: the frozen DINOv2 ViT-B/14 backbone (paper sec. 3.1); ``encode_images`` runs it and the
+      ``encoder``, the CNN feature pyramid (FPN) down to 1/8 (sec. 3.1, spec 1).
+    * ``decoder_vit``: Side View Attention (SVA, sec. 3.2) on the DINOv2 tokens, the reference's
+      ``CrossVITDecoder`` (:class:`~mvsformerpp.models.sva.SideViewAttention`), added to the 1/8 map.
+    * ``decoder``: the FPN's top-down pathway: per-stage features at 1/8, 1/4, 1/2, 1/1.
+    * ``FMT_module``: the feature matching transformer on the 1/8 features with its pathway to the finer
+      stages, the second half of SVA in the paper (sec. 3.2, the reference's ``FMT_with_pathway``).
+    * ``fusions``: the four cascade stages (sec. 3.3), each a :class:`~mvsformerpp.models.cost_volume.StageNet`:
+      group-wise correlation cost volume with visibility weights (``vis``), then ``cost_reg``: the Cost
+      Volume Transformer with frustoconical positional encoding and adaptive attention scaling (CVT,
+      sec. 3.3-3.4) at stage 1, 3-D U-Nets at stages 2-4.
+
+    Inference: call :meth:`prepare_for_inference` once (see :mod:`mvsformerpp.models.inference`).
+    The frustoconical positional encoding normalises its coordinates by the depth range of the whole
+    batch (``depth_values.min()``/``max()``), as the reference does: a sample's stage-1 output depends
+    on the other samples' depth ranges, so batch only views with the same range.
+    """
 
     def __init__(self, config: ModelConfig | None = None):
         super().__init__()
@@ -40,6 +61,21 @@ class MVSFormerPP(nn.Module):
         self.vit.mask_token.requires_grad_(False)  # in DINOv2 checkpoints, never used here
         self.set_attention_backend(cfg.attention_backend)
 
+    def prepare_for_inference(self) -> MVSFormerPP:
+        """Eval mode with the inference forms built (folded BatchNorm, banded U-Nets, in-place work):
+        forwards without autograd then run them. ``train()``, ``load_state_dict`` and any change of the
+        parameters drop them again (:mod:`mvsformerpp.models.inference`). Returns the model."""
+        return inference.prepare(self)
+
+    def train(self, mode: bool = True) -> MVSFormerPP:
+        if mode:
+            inference.release(self)
+        return super().train(mode)
+
+    def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
+        inference.release(self)
+        return super().load_state_dict(state_dict, strict=strict, assign=assign)
+
     def set_attention_backend(self, backend: str) -> None:
         """Softmax attention kernel for DINOv2 and the CVT: sdpa | flash | eager | auto."""
         for m in self.modules():
@@ -48,7 +84,8 @@ class MVSFormerPP(nn.Module):
 
     def encode_images(self, imgs: torch.Tensor) -> ImageFeatures:
         """Per-image work for [N, 3, H, W] ImageNet-normalised images (H, W multiples of 32)."""
-        return encode_images(self.vit, self.encoder, imgs, self.config.vit_rescale)
+        with inference.session(self):
+            return encode_images(self.vit, self.encoder, imgs, self.config.vit_rescale)
 
     def forward(self, imgs: torch.Tensor, proj_matrices: dict, depth_values: torch.Tensor,
                 temperatures=None, image_features: ImageFeatures | None = None,
@@ -74,9 +111,14 @@ class MVSFormerPP(nn.Module):
             "depth" [B,H,W] (stage 4), "photometric_confidence" [B,H,W] (mean of the 4 stages)}.
         """
         B, V, _, H, W = imgs.shape
-        cfg = self.config
         if H % 32 or W % 32:
             raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
+        with inference.session(self):
+            return self._forward(imgs, proj_matrices, depth_values, temperatures, image_features, release_features)
+
+    def _forward(self, imgs, proj_matrices, depth_values, temperatures, image_features, release_features) -> dict:
+        B, V, _, H, W = imgs.shape
+        cfg = self.config
         own = image_features is None
         if own:
             image_features = self.encode_images(imgs.reshape(B * V, *imgs.shape[2:]))

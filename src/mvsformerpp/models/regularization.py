@@ -2,13 +2,13 @@
 
 from __future__ import annotations
 
-import weakref
-
 import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models.layers import ConvBnReLU3d, DeconvBnReLU3d, fold_batchnorm
+from mvsformerpp.models import inference
+from mvsformerpp.models.inference import fused_conv_bn
+from mvsformerpp.models.layers import ConvBnReLU3d, DeconvBnReLU3d
 
 
 def _unet_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
@@ -39,9 +39,13 @@ class CostRegNet(nn.Module):
         self.prob = nn.Conv3d(base, 1, 3, padding=1, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if _fast_path(self, x):
-            return _unet_fast(self, x)  # the same function, faster on CPU (see below)
+        forms = inference.forms(self)
+        if forms is not None and x.device.type == "cpu":
+            return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
         return _unet_forward(self, x)
+
+    def build_inference_forms(self) -> dict:
+        return _unet_forms(self)
 
 
 def _deconv_hw(cin: int, cout: int) -> nn.Sequential:
@@ -70,14 +74,18 @@ class CostRegNet3D(nn.Module):
         self.prob = nn.Conv3d(base, 1, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        if _fast_path(self, x):
-            return _unet_fast(self, x)  # the same function, faster on CPU (see below)
+        forms = inference.forms(self)
+        if forms is not None and x.device.type == "cpu":
+            return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
         return _unet_forward(self, x)
+
+    def build_inference_forms(self) -> dict:
+        return _unet_forms(self)
 
 
 # ------------------------------------------------------------------------------------------------
-# Inference fast path (CPU, eval, no autograd): the same function as the modules above, up to float
-# rounding. A 3-D convolution over a volume [B, C, D, H, W] equals a 2-D convolution over the
+# Prepared inference on the CPU (see mvsformerpp.models.inference): the same function as the modules
+# above, up to float rounding. A 3-D convolution over a volume [B, C, D, H, W] equals a 2-D convolution over the
 # channels (c, d) of its [B, C*D, H, W] view with a depth-banded weight,
 # W2[(o, d'), (c, d)] = W[o, c, d - s d' + p] (depth stride s, padding p; transposed alike), and
 # oneDNN runs these wide 2-D convolutions, in channels-last memory, several times faster than the
@@ -85,12 +93,21 @@ class CostRegNet3D(nn.Module):
 # im2col path). Eval BatchNorm is folded into each convolution, and ReLU and the skip additions run in
 # place, so every level allocates one map.
 
-# Per convolution module (entries die with it): {(input depth, parameter versions): (weight, bias)}.
-_fold_cache: weakref.WeakKeyDictionary = weakref.WeakKeyDictionary()
+_LEVELS = ("conv1", "conv2", "conv3", "conv4", "conv5", "conv6", "conv7", "conv9", "conv11", "prob")
 
 
-def _fast_path(net: nn.Module, x: torch.Tensor) -> bool:
-    return not net.training and not torch.is_grad_enabled() and x.device.type == "cpu"
+def _unet_forms(net: nn.Module) -> dict:
+    """Prepared forms of a U-Net (:mod:`.inference`): each level's convolution with its eval BatchNorm
+    folded in; the depth-banded weights are made from them per input depth on first use."""
+    forms = {"banded": {}}
+    for name in _LEVELS:
+        layer = getattr(net, name)  # ConvBnReLU3d / DeconvBnReLU3d, (ConvTranspose3d, BatchNorm3d, ReLU), Conv3d
+        if isinstance(layer, nn.Sequential):
+            conv, bn = layer[0], layer[1]
+        else:
+            conv, bn = (layer.conv, layer.bn) if hasattr(layer, "conv") else (layer, None)
+        forms[name] = (conv, *fused_conv_bn(conv, bn))
+    return forms
 
 
 def _band(weight: torch.Tensor, D: int, transposed: bool, stride: int, pad: int, out_pad: int):
@@ -113,53 +130,45 @@ def _band(weight: torch.Tensor, D: int, transposed: bool, stride: int, pad: int,
     return W2.reshape(a * n_strided, b * n_dense, kh, kw), (n_dense if transposed else n_strided)
 
 
-def _folded(conv: nn.Module, bn: nn.Module | None, D: int):
-    """(banded weight, bias) of conv with the eval BatchNorm bn folded in, for input depth D."""
-    tensors = [conv.weight] + ([] if bn is None else [bn.weight, bn.bias, bn.running_mean, bn.running_var])
-    if conv.bias is not None:
-        tensors.append(conv.bias)
-    cache = _fold_cache.setdefault(conv, {})
-    key = (D, *((t.data_ptr(), t._version, t.dtype, t.device) for t in tensors))
-    if key not in cache:
-        if len(cache) > 8:
-            cache.clear()
+def _banded(forms: dict, name: str, D: int):
+    """(banded weight, bias) of level ``name`` for input depth D, made once per D."""
+    key = (name, D)
+    if key not in forms["banded"]:
+        conv, w, bias = forms[name]
         transposed = isinstance(conv, nn.ConvTranspose3d)
-        if bn is None:
-            w, bias = conv.weight.detach(), None if conv.bias is None else conv.bias.detach()
-        else:
-            w, bias = fold_batchnorm(conv.weight, bn, transposed, bias=conv.bias)
         out_pad = conv.output_padding[0] if transposed else 0
         w, D_out = _band(w, D, transposed, conv.stride[0], conv.padding[0], out_pad)
         bias = None if bias is None else bias.repeat_interleave(D_out)
-        cache[key] = (w.contiguous(memory_format=torch.channels_last), bias)
-    return cache[key]
+        forms["banded"][key] = (w.contiguous(memory_format=torch.channels_last), bias)
+    return forms["banded"][key]
 
 
-def _banded_conv2d(x2: torch.Tensor, conv: nn.Module, bn: nn.Module | None) -> torch.Tensor:
-    """conv (3-D) then eval bn on a volume viewed as [B, C*D, H, W] -> [B, C'*D', H', W']."""
-    w, b = _folded(conv, bn, x2.shape[1] // conv.in_channels)
+def _banded_conv2d(forms: dict, name: str, x2: torch.Tensor) -> torch.Tensor:
+    """Level ``name`` (3-D convolution then eval BatchNorm) on a volume viewed as [B, C*D, H, W]
+    -> [B, C'*D', H', W']."""
+    conv = forms[name][0]
+    w, b = _banded(forms, name, x2.shape[1] // conv.in_channels)
     if isinstance(conv, nn.ConvTranspose3d):
         return F.conv_transpose2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:],
                                   output_padding=conv.output_padding[1:])
     return F.conv2d(x2, w, b, stride=conv.stride[1:], padding=conv.padding[1:])
 
 
-def _unet_fast(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
+def _unet_banded(net: nn.Module, forms: dict, x: torch.Tensor) -> torch.Tensor:
     """_unet_forward on [B, C*D, H, W] maps, channels-last after the first level (no layout
     conversions of full-resolution outputs), with in-place ReLU and skips; logits [B, 1, D, H, W]."""
     B, C, D, H, W = x.shape
     x2 = x.reshape(B, C * D, H, W)
 
-    def level(layer, y):  # ConvBnReLU3d / DeconvBnReLU3d, or (ConvTranspose3d, BatchNorm3d, ReLU)
-        conv, bn = (layer.conv, layer.bn) if hasattr(layer, "conv") else (layer[0], layer[1])
-        return _banded_conv2d(y, conv, bn).relu_().contiguous(memory_format=torch.channels_last)
+    def level(name, y):
+        return _banded_conv2d(forms, name, y).relu_().contiguous(memory_format=torch.channels_last)
 
-    c2 = level(net.conv2, level(net.conv1, x2))
-    c4 = level(net.conv4, level(net.conv3, c2))
-    y = level(net.conv6, level(net.conv5, c4))
-    y = level(net.conv7, y).add_(c4)
+    c2 = level("conv2", level("conv1", x2))
+    c4 = level("conv4", level("conv3", c2))
+    y = level("conv6", level("conv5", c4))
+    y = level("conv7", y).add_(c4)
     del c4
-    y = level(net.conv9, y).add_(c2)
+    y = level("conv9", y).add_(c2)
     del c2
-    y = level(net.conv11, y).add_(x2)
-    return _banded_conv2d(y, net.prob, None).contiguous().unsqueeze(1)  # one logit channel per depth
+    y = level("conv11", y).add_(x2)
+    return _banded_conv2d(forms, "prob", y).contiguous().unsqueeze(1)  # one logit channel per depth

@@ -8,8 +8,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from mvsformerpp.models import inference
 from mvsformerpp.models.attention import linear_attention
-from mvsformerpp.models.layers import LayerScale, Mlp, fold_batchnorm
+from mvsformerpp.models.inference import fused_conv_bn
+from mvsformerpp.models.layers import LayerScale, Mlp
 
 
 class LinearAttention(nn.Module):
@@ -116,17 +118,23 @@ class SideViewAttention(nn.Module):
         """[N, L, C] tokens on an h x w grid -> [N, out_ch, 4h, 4w]."""
         N, _, C = tokens.shape
         x = tokens.reshape(N, hw[0], hw[1], C).permute(0, 3, 1, 2)
-        if self.training or torch.is_grad_enabled():
+        forms = inference.forms(self)
+        if forms is None:
             return self.upsampler1(self.upsampler0(self.proj(x)))
-        for conv, bn, _ in (self.proj, self.upsampler0, self.upsampler1):  # inference: BatchNorm folded
-            if isinstance(conv, nn.ConvTranspose2d):
-                w, b = fold_batchnorm(conv.weight, bn, transposed=True, bias=conv.bias)
+        for (w, b), (conv, _, _) in zip(forms, (self.proj, self.upsampler0, self.upsampler1)):
+            if isinstance(conv, nn.ConvTranspose2d):  # prepared inference: BatchNorm folded, SiLU in place
                 x = F.conv_transpose2d(x, w, b, conv.stride, conv.padding)
             else:
-                w, b = fold_batchnorm(conv.weight, bn, bias=conv.bias)
                 x = F.conv2d(x, w, b, conv.stride, conv.padding)
             x = F.silu(x, inplace=True)
         return x
+
+    inference_sources = ("proj", "upsampler0", "upsampler1")
+
+    def build_inference_forms(self) -> list:
+        """The projection and upsampler convolutions with their BatchNorm folded in (:mod:`.inference`)."""
+        return [fused_conv_bn(seq[0], seq[1], memory_format=torch.contiguous_format)
+                for seq in (self.proj, self.upsampler0, self.upsampler1)]
 
     def forward(self, taps: list[torch.Tensor], hw: tuple[int, int]) -> torch.Tensor:
         """taps: each [B, V, L, C] -> [B*V, out_ch, 4h, 4w] (batch-major)."""

@@ -57,7 +57,12 @@ class ReconstructConfig:
     num_views: int = 5
     """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
     num_depth: int = 192
-    """Depth-hypothesis count of the input range (only its ends are used by the cascade)."""
+    """Depth-plane count of the input range, written to the output cams (the cascade uses only the ends
+    of the range)."""
+    interval_scale: float = 1.0
+    """Widen (or narrow) each view's depth range from its minimum by this factor: the reference's
+    ``interval_scale`` for ranges given as MIN INTERVAL (DTU: 1.06, so 425 + 191 x 2.5 x 1.06 mm).
+    Not applied to an explicit ``depth_range``."""
     temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0)
     """Per-stage softmax temperatures at inference (spec section 7)."""
     depth_range: tuple[float, float] | None = None
@@ -66,11 +71,12 @@ class ReconstructConfig:
     """How a two-number MVSNet depth line is read: MIN INTERVAL, MIN MAX, or MAX when larger than MIN (auto)."""
     max_images: int | None = None
     """Use only N overlapping views (view 0 and its nearest neighbours; quick looks, tests); None = all."""
-    fusion: Literal["normal", "dynamic", "gipuma", "none"] = "normal"
+    fusion: Literal["normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced", "none"] = "normal"
+    """Fusion preset (``mvsformerpp.fusion.PRESETS``; ``dtu``, ``tnt_intermediate`` and ``tnt_advanced`` are
+    the reference's settings); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
     fusion_conf: float | None = None
     """Override of the fusion preset's confidence threshold (None = the preset's); the shipped default weights'
     confidences are low (not calibrated), so the demo fuses them at 0.1."""
-    """Fusion filter (``mvsformerpp.fusion``); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
     output_resolution: Literal["original", "working"] = "original"
     """``original``: depth and confidence maps at each photo's size (upsampled from the working
     resolution); ``working``: at the working resolution, with ``images/`` resized and ``cams/`` scaled
@@ -100,6 +106,8 @@ class ReconstructConfig:
                              "0 < min < max")
         if self.depth_format not in ("auto", "interval", "max"):
             raise InputError(f"--depth-format must be auto, interval or max, got {self.depth_format!r}")
+        if not self.interval_scale > 0:
+            raise InputError(f"--interval-scale must be positive, got {self.interval_scale}")
         if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
             raise InputError(f"fusion_conf must be in [0, 1), got {self.fusion_conf}")
         if len(self.temperatures) != 4:
@@ -134,9 +142,10 @@ def load_input(path: str | Path, out: Path, num_neighbors: int = 10, quiet: bool
         path = path / "dense"
     layout = detect.detect_layout(path)
     if layout == "images":
-        from mvsformerpp.pipelines.sfm import list_photos, run_sfm
+        from mvsformerpp.io.images import list_images
+        from mvsformerpp.pipelines.sfm import run_sfm
 
-        photos = path if list_photos(path) or not (path / "images").is_dir() else path / "images"
+        photos = path if list_images(path) or not (path / "images").is_dir() else path / "images"
         dense = run_sfm(photos, out / "sfm", quiet=quiet, config=sfm)
         return detect.load_scene(dense, depth_range=depth_range)
     if layout == "colmap" and _colmap_is_distorted(path):
@@ -204,6 +213,9 @@ def prepare_scene(scene: Scene, config: ReconstructConfig) -> Scene:
     if config.depth_range is not None:
         lo, hi = config.depth_range
         views = [dataclasses.replace(v, depth_min=float(lo), depth_max=float(hi)) for v in views]
+    elif config.interval_scale != 1.0:
+        views = [v if v.depth_min is None or v.depth_max is None else dataclasses.replace(
+            v, depth_max=v.depth_min + (v.depth_max - v.depth_min) * config.interval_scale) for v in views]
     lonely = [v.name for v in views if not v.neighbors]
     if lonely:
         raise InputError(
@@ -568,13 +580,10 @@ def _device(name: str, ranks=None) -> torch.device:
 
 
 def _fusion_config(name: str, conf: float | None = None):
-    """The named fusion configuration of :mod:`mvsformerpp.fusion`, with ``conf`` as its confidence threshold."""
-    from mvsformerpp import fusion
+    """The named fusion preset of :mod:`mvsformerpp.fusion`, with ``conf`` as its confidence threshold."""
+    from mvsformerpp.fusion import get_config
 
-    get = getattr(fusion, "get_config", None)
-    if not callable(get):
-        return name
-    return get(name) if conf is None else get(name, conf_threshold=conf)
+    return get_config(name) if conf is None else get_config(name, conf_threshold=conf)
 
 
 def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None,

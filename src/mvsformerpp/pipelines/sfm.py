@@ -26,11 +26,10 @@ from pathlib import Path
 from typing import Literal
 
 from mvsformerpp.errors import InputError, MissingDependencyError
+from mvsformerpp.io.images import IMAGE_SUFFIXES, list_images
 
 log = logging.getLogger(__name__)
 
-# Photo suffixes COLMAP can read that we look for in a photo folder (lower case).
-PHOTO_SUFFIXES = (".jpg", ".jpeg", ".png", ".bmp", ".tif", ".tiff")
 
 
 def import_pycolmap():
@@ -40,11 +39,6 @@ def import_pycolmap():
     except ImportError as e:
         raise MissingDependencyError("pycolmap", "colmap", "Structure-from-motion on a folder of photos") from e
     return pycolmap
-
-
-def list_photos(folder: Path) -> list[str]:
-    """Names of the photos directly inside ``folder``, sorted."""
-    return sorted(p.name for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in PHOTO_SUFFIXES)
 
 
 def write_sfm_report(model_dir: Path, photos: list[str], path: Path) -> dict:
@@ -120,11 +114,11 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
         log.info("SfM already done in %s; reusing it", sfm_dir)
         return dense
     pycolmap = import_pycolmap()
-    photos = list_photos(image_dir)
+    photos = [p.name for p in list_images(image_dir)]
     if len(photos) < 2:
         raise InputError(
             f"found {len(photos)} photo(s); structure-from-motion needs at least 2 overlapping photos "
-            f"({', '.join(PHOTO_SUFFIXES)})",
+            f"({', '.join(IMAGE_SUFFIXES)})",
             image_dir,
         )
     sfm_dir.mkdir(parents=True, exist_ok=True)

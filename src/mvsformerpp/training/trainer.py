@@ -110,7 +110,7 @@ def validate(model: MVSFormerPP, dataset: MVSDataset, config: TrainConfig, devic
     """Loss and depth metrics (stage-4 depth vs ground truth; thresholds in depth intervals) on the
     first ``val_samples`` samples, one at a time, in eval mode."""
     was_training = model.training
-    model.eval()
+    model.prepare_for_inference()  # eval mode and the inference forms; train() drops them again
     h, w = config.val_height or config.height, config.val_width or config.width
     n = len(dataset) if config.val_samples <= 0 else min(config.val_samples, len(dataset))
     sums, losses = DepthSums(), []
