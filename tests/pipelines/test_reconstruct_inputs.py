@@ -37,15 +37,6 @@ def fake_model():
     return sys.modules[name].FakeMVSModel()
 
 
-@pytest.fixture
-def photos(tmp_path):
-    d = tmp_path / "photos"
-    d.mkdir()
-    for p in sorted(temple_dir().glob("*.png")):
-        shutil.copy(p, d / p.name)
-    return d
-
-
 def test_photo_folder_runs_sfm_once_and_reconstructs(photos, tmp_path, monkeypatch):
     pytest.importorskip("pycolmap")
     out = tmp_path / "out"

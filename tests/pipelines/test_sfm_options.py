@@ -1,23 +1,12 @@
 """SfM options on real photos (the temple), failures explained, and OUT/sfm fed back in."""
 
 import json
-import shutil
 
 import pytest
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.pipelines.demo import temple_dir
 from mvsformerpp.pipelines.reconstruct import load_input
 from mvsformerpp.pipelines.sfm import SfMConfig, run_sfm
-
-
-@pytest.fixture
-def photos(tmp_path):
-    d = tmp_path / "photos"
-    d.mkdir()
-    for p in sorted(temple_dir().glob("*.png")):
-        shutil.copy(p, d / p.name)
-    return d
 
 
 def test_single_pinhole_camera_and_sequential_matching(photos, tmp_path, capsys):
