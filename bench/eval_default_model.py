@@ -47,11 +47,13 @@ def main() -> None:
         results["wall_s"] = round(time.perf_counter() - t, 1)
     for key in ("synthetic_train", "synthetic_heldout"):
         r = results[key]
-        print(f"{key:18s} within 1% of range {100 * r['within_1pct']:5.1f}%   accuracy "
+        print(f"{key:18s} within 1% of range {100 * r['within_1pct']:5.1f}%   within 10% of depth "
+              f"{100 * r['within_10pct_depth']:5.1f}%   accuracy "
               f"{_pct(r['accuracy_pct'])}   completeness {_pct(r['completeness_pct'])} of the scene depth")
     if "dtu_pair" in results:
         r = results["dtu_pair"]
-        print(f"{'dtu_pair':18s} within 4 mm {100 * r['within_4mm']:5.1f}%   within 8 mm {100 * r['within_8mm']:5.1f}%")
+        print(f"{'dtu_pair':18s} within 4 mm {100 * r['within_4mm']:5.1f}%   within 8 mm {100 * r['within_8mm']:5.1f}%"
+              f"   within 10% of depth {100 * r['within_10pct']:5.1f}%")
         r = results["temple"]
         print(f"{'temple':18s} {r['points']} points, {100 * r['inside_box']:.1f}% inside the box, "
               f"{100 * r['on_silhouette']:.1f}% on the silhouettes")

@@ -138,3 +138,23 @@ def test_bad_layouts_name_what_is_missing(tmp_path):
         dtu_entries(root, ["scan1"], (3,))
     with pytest.raises(InputError, match="not in this BlendedMVS root.*blended_images"):
         blended_entries(tmp_path, ["abc"])
+
+
+def test_synthetic_range_margin_widens_each_end_by_a_drawn_fraction():
+    from mvsformerpp.data import SyntheticDataset
+
+    def ratios(ds, index, seed):
+        vs = ds.load_views(index, np.random.default_rng(seed), 48, 64)
+        true = vs.views[0].depth[vs.views[0].depth > 0]
+        return vs.depth_min / float(true.min()), vs.depth_max / float(true.max())
+
+    fixed = SyntheticDataset(2, num_views=3, views_per_scene=3)
+    assert ratios(fixed, 0, 0) == pytest.approx((0.95, 1.05))
+    wide = SyntheticDataset(2, num_views=3, views_per_scene=3, range_margin=(0.1, 0.3))
+    drawn = [ratios(wide, 0, seed) for seed in range(6)]
+    for near, far in drawn:
+        assert 0.7 <= near <= 0.9 and 1.1 <= far <= 1.3
+    assert len({round(n, 6) for n, _ in drawn}) == 6  # a new draw per sample, near and far independent
+    assert any(abs((1 - n) - (f - 1)) > 0.01 for n, f in drawn)
+    with pytest.raises(InputError, match="range_margin"):
+        SyntheticDataset(2, num_views=3, views_per_scene=3, range_margin=(0.3, 0.1))

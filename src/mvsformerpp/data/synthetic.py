@@ -56,7 +56,7 @@ class SyntheticDataset(MVSDataset):
 
     def __init__(self, num_scenes: int, num_views: int = 5, views_per_scene: int = 7, scene_seed: int = 0,
                  source: str | Callable = DEFAULT_SOURCE, options: dict | None = None, num_candidates: int = 10,
-                 render_scale: float = 1.0, **kwargs):
+                 render_scale: float = 1.0, range_margin: tuple[float, float] = (0.05, 0.05), **kwargs):
         super().__init__(**kwargs)
         if views_per_scene < num_views:
             raise InputError(f"views_per_scene ({views_per_scene}) must be at least num_views ({num_views})")
@@ -68,6 +68,10 @@ class SyntheticDataset(MVSDataset):
         self.options = dict(options or {})
         self.num_candidates = int(num_candidates)
         self.render_scale = float(render_scale)
+        lo, hi = (float(m) for m in range_margin)
+        if not 0.0 <= lo <= hi < 1.0:
+            raise InputError(f"range_margin {range_margin} must be two fractions 0 <= low <= high < 1")
+        self.range_margin = (lo, hi)
 
     def __len__(self) -> int:
         return self.num_scenes * self.views_per_scene
@@ -96,7 +100,9 @@ class SyntheticDataset(MVSDataset):
                 valid = depth > 0
                 if not valid.any():
                     raise InputError(f"{self.describe(index)}: the reference view sees nothing")
-                dmin, dmax = float(depth[valid].min()) * 0.95, float(depth[valid].max()) * 1.05
+                lo, hi = self.range_margin
+                m_near, m_far = (lo, lo) if lo == hi else rng.uniform(lo, hi, size=2)
+                dmin, dmax = float(depth[valid].min()) * (1 - m_near), float(depth[valid].max()) * (1 + m_far)
                 views.append(ViewData(image, np.asarray(cam.K, dtype=np.float64), E, depth, valid))
             else:
                 views.append(ViewData(image, np.asarray(cam.K, dtype=np.float64), E))

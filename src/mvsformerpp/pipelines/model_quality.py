@@ -3,10 +3,11 @@
 - :func:`synthetic_quality`: scenes from :mod:`mvsformerpp.synth` with exact ground truth, on seeds no
   training run uses (training takes seeds ``seed .. seed + scenes``, validation ``seed + 10^6 ..``) and
   on the ``heldout`` style training never sees. Depth: the share of valid pixels within 1 % of the
-  view's depth range (the cam file's min..max); cloud: accuracy and completeness of the fused cloud
-  against the scene's ground-truth surface, as a percentage of the mean ground-truth depth.
+  view's depth range (the cam file's min..max) and within 10 % of the true depth; cloud: accuracy and
+  completeness of the fused cloud against the scene's ground-truth surface, as a percentage of the mean
+  ground-truth depth.
 - :func:`dtu_pair_quality`: the two real DTU views with ground-truth depth in ``tests/data/dtu_pair``:
-  the share of valid ground-truth pixels within 4 mm and 8 mm.
+  the share of valid ground-truth pixels within 4 mm and 8 mm, and within 10 % of the true depth.
 - :func:`temple_quality`: the Middlebury temple of the demo: fused points, the share inside the
   object's bounding box (its README), and the share of points that project onto the object in each
   photo (the background is black: the object is where the photo is brighter than :data:`DARK`).
@@ -39,7 +40,7 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
     from mvsformerpp.synth import generate_scene
 
     out = Path(out_dir)
-    within = total = 0
+    within = within10 = total = 0
     acc, comp, per_scene = [], [], []
     for k in range(scenes):
         scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
@@ -47,7 +48,7 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
         rec = out / f"recon_{k}"
         cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views))
         reconstruct(scene_dir, rec, cfg, quiet=quiet)
-        s_within = s_total = 0
+        s_within = s_within10 = s_total = 0
         depths = []
         for i in range(num_views):
             gt = read_pfm(scene_dir / "depth_gt" / f"{i:08d}.pfm")
@@ -57,12 +58,14 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
             tol = 0.01 * (cam.depth_max - cam.depth_min)
             ok = np.abs(est[valid] - gt[valid]) < tol
             s_within += int(ok.sum())
+            s_within10 += int((np.abs(est[valid] - gt[valid]) < 0.1 * gt[valid]).sum())
             s_total += int(valid.sum())
             depths.append(gt[valid])
         mean_depth = float(np.concatenate(depths).mean())
         pred = ply_points(read_ply(rec / "fused.ply")).astype(np.float64)
         gt_pts = ply_points(read_ply(scene_dir / "gt_surface.ply")).astype(np.float64)
-        row = {"seed": seed + k, "within_1pct": s_within / s_total, "points": int(len(pred))}
+        row = {"seed": seed + k, "within_1pct": s_within / s_total, "within_10pct_depth": s_within10 / s_total,
+               "points": int(len(pred))}
         if len(pred):
             d = cloud_distances(pred, gt_pts)
             row["accuracy_pct"] = 100 * float(d.pred_to_gt.mean()) / mean_depth
@@ -71,9 +74,10 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
             comp.append(row["completeness_pct"])
         per_scene.append(row)
         within += s_within
+        within10 += s_within10
         total += s_total
     return {"style": style, "scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
-            "within_1pct": within / total,
+            "within_1pct": within / total, "within_10pct_depth": within10 / total,
             "accuracy_pct": float(np.mean(acc)) if acc else None,
             "completeness_pct": float(np.mean(comp)) if comp else None,
             "per_scene": per_scene}
@@ -106,9 +110,10 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
         valid = gt > 0
         err = np.abs(est[valid] - gt[valid])
         rows[f"view{i}"] = {"within_4mm": float((err < 4).mean()), "within_8mm": float((err < 8).mean()),
+                            "within_10pct": float((err < 0.1 * gt[valid]).mean()),
                             "mae_mm": float(err.mean()), "valid_pixels": int(valid.sum())}
-    return {"within_4mm": float(np.mean([r["within_4mm"] for r in rows.values()])),
-            "within_8mm": float(np.mean([r["within_8mm"] for r in rows.values()])), **rows}
+    return {**{k: float(np.mean([r[k] for r in rows.values()])) for k in ("within_4mm", "within_8mm", "within_10pct")},
+            **rows}
 
 
 def temple_quality(out_dir: str | Path, config: ReconstructConfig | None = None, quiet: bool = True) -> dict:

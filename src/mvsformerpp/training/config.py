@@ -81,6 +81,10 @@ class TrainConfig:
     """Cameras per synthetic scene (each a reference view once per epoch)."""
     synthetic_render_scale: float = 1.2
     """Render at the batch size times this, leaving room for the random resize and crop."""
+    synthetic_range_margin: tuple[float, float] = (0.05, 0.05)
+    """Depth-range margin of training samples: each end of the reference view's true range is widened by a
+    fraction drawn uniformly from this interval (validation: 5 %). Wider draws teach the loose ranges of
+    real cam files and sparse points."""
     # ---- optimisation
     batch_size: int = 4
     """Global batch (all processes together); the reference: 16 on 4 GPUs."""

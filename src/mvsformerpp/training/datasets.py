@@ -29,6 +29,7 @@ def build_datasets(config: TrainConfig) -> tuple[MVSDataset, MVSDataset]:
                    source=config.synthetic_source, options=config.synthetic_options,
                    render_scale=config.synthetic_render_scale)
         train = SyntheticDataset(config.synthetic_train_scenes, scene_seed=config.seed, seed=config.seed,
+                                 range_margin=tuple(config.synthetic_range_margin),
                                  resize_crop=train_tf, photometric=photometric, **syn, **common)
         val = SyntheticDataset(config.synthetic_val_scenes, scene_seed=config.seed + SYNTHETIC_VAL_OFFSET,
                                seed=config.seed + 1, resize_crop=val_tf, **syn, **common)
