@@ -1,7 +1,12 @@
 """Quality of a set of weights (default: the shipped ones) on held-out synthetic scenes and the real checks.
 
     python bench/eval_default_model.py [--checkpoint RUN/checkpoints/best.safetensors] [--out DIR]
-                                       [--json quality.json] [--scenes 4] [--skip-real]
+                                       [--json quality.json] [--scenes 4] [--skip-real] [--calibrate]
+
+``--calibrate`` first chooses the fusion confidence thresholds for the weights on synthetic scenes of
+other seeds (``calibrate_fusion_conf``) and fuses with them; ``tools/ship_default_weights.py --quality``
+stores them in the shipped record. Without it, the shipped weights fuse with their recorded
+thresholds and other weights with the presets'.
 
 Synthetic: ``--scenes`` scenes of the training style on seeds no run trains on, and as many of the
 held-out style (see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair with ground-truth depth
@@ -11,6 +16,7 @@ held-out style (see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import tempfile
 import time
@@ -18,7 +24,13 @@ from pathlib import Path
 
 
 def main() -> None:
-    from mvsformerpp.pipelines.model_quality import dtu_pair_quality, synthetic_quality, temple_quality
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG
+    from mvsformerpp.pipelines.model_quality import (
+        calibrate_fusion_conf,
+        dtu_pair_quality,
+        synthetic_quality,
+        temple_quality,
+    )
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig, describe_weights
     from mvsformerpp.utils.allocator import tune_allocator
 
@@ -28,6 +40,7 @@ def main() -> None:
     p.add_argument("--json", help="write the results here")
     p.add_argument("--scenes", type=int, default=4, help="synthetic scenes per style (default: 4)")
     p.add_argument("--skip-real", action="store_true", help="only the synthetic scenes")
+    p.add_argument("--calibrate", action="store_true", help="calibrate the fusion thresholds first")
     args = p.parse_args()
     tune_allocator()
     config = ReconstructConfig(preset="lite", checkpoint=args.checkpoint, num_views=5, fusion="normal")
@@ -36,14 +49,21 @@ def main() -> None:
         out = Path(args.out or tmp)
         results: dict = {"weights": describe_weights(config)}
         t = time.perf_counter()
+        demo = None if args.checkpoint is None else dataclasses.replace(DEMO_CONFIG, checkpoint=args.checkpoint)
+        if args.calibrate:
+            calibration = calibrate_fusion_conf(out / "calibration", config)
+            results["calibration"] = calibration
+            confs = calibration["fusion_conf"]
+            print(f"calibrated fusion thresholds: {confs}")
+            config = dataclasses.replace(config, fusion_conf=confs["normal"])
+            demo = dataclasses.replace(demo or DEMO_CONFIG, fusion_conf=confs["dynamic"])
         for style in ("train", "heldout"):
             results[f"synthetic_{style}"] = synthetic_quality(out / f"synth_{style}", config, style=style,
                                                               scenes=args.scenes)
         if not args.skip_real:
             results["dtu_pair"] = dtu_pair_quality(Path(__file__).resolve().parents[1] / "tests/data/dtu_pair",
                                                    out / "dtu_pair", config)
-            results["temple"] = temple_quality(out / "temple", config=None if args.checkpoint is None else
-                                               _demo_with(args.checkpoint))
+            results["temple"] = temple_quality(out / "temple", config=demo)
         results["wall_s"] = round(time.perf_counter() - t, 1)
     for key in ("synthetic_train", "synthetic_heldout"):
         r = results[key]
@@ -63,14 +83,6 @@ def main() -> None:
 
 def _pct(x) -> str:
     return "  n/a" if x is None else f"{x:5.2f}%"
-
-
-def _demo_with(checkpoint: str):
-    import dataclasses
-
-    from mvsformerpp.pipelines.demo import DEMO_CONFIG
-
-    return dataclasses.replace(DEMO_CONFIG, checkpoint=checkpoint)
 
 
 if __name__ == "__main__":

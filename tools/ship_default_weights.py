@@ -4,7 +4,8 @@
         [--quality quality.json] [--info key=value ...]
 
 Writes src/mvsformerpp/assets/weights/<file> and default.json (size, SHA-256, the training facts given,
-the run's config.yaml and last metrics, and the measured quality when --quality is given).
+the run's config.yaml and last metrics, and the measured quality when --quality is given; a quality file
+made with ``--calibrate`` also gives the fusion confidence thresholds ``reconstruct`` uses with them).
 """
 
 from __future__ import annotations
@@ -39,7 +40,12 @@ def main() -> None:
         info["last_training_row"] = train_rows[-1] if train_rows else None
         info["last_validation_row"] = val_rows[-1] if val_rows else None
     if args.quality:
-        info["quality"] = json.loads(Path(args.quality).read_text())
+        quality = json.loads(Path(args.quality).read_text())
+        calibration = quality.pop("calibration", None)
+        info["quality"] = quality
+        if calibration is not None:  # bench/eval_default_model.py --calibrate: the thresholds fusion uses
+            info["fusion_conf"] = calibration["fusion_conf"]
+            info["fusion_calibration"] = calibration
     path = write_shipped(model, "lite", WEIGHTS_DIR, FILE_NAME, info)
     print(f"wrote {path} ({path.stat().st_size / 2**20:.1f} MiB) and {WEIGHTS_DIR / 'default.json'}")
 

@@ -118,3 +118,31 @@ def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
     paper = dataclasses.replace(config, preset="paper")
     assert "randomly initialised" in describe_weights(paper)
     assert presets_for(get_config("paper")) == ["paper", "paper_finetune"]
+
+
+def test_fusion_threshold_calibrated_for_the_shipped_weights(monkeypatch, tmp_path):
+    import json
+
+    from mvsformerpp.cli.fuse import shipped_weights_conf
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, describe_fusion, fusion_conf_for
+
+    record = {**shipped.shipped_record(), "fusion_conf": {"normal": 0.2, "dynamic": 0.15}}
+    monkeypatch.setattr(shipped, "shipped_record", lambda: record)
+    default = ReconstructConfig()
+    assert fusion_conf_for(default) == 0.2
+    assert fusion_conf_for(dataclasses.replace(default, fusion="tnt_advanced")) == 0.15  # a dynamic preset
+    assert fusion_conf_for(dataclasses.replace(default, fusion="gipuma")) is None  # not calibrated: the preset's
+    assert fusion_conf_for(dataclasses.replace(default, fusion_conf=0.4)) == 0.4  # --conf wins
+    other = dataclasses.replace(default, checkpoint="run/best.safetensors")
+    assert fusion_conf_for(other) is None  # other weights: the preset's own threshold
+    assert describe_fusion(default) == ("fusion: normal, confidence threshold 0.2 (calibrated for the default "
+                                        "weights; --conf sets another)")
+    assert describe_fusion(other) == "fusion: normal, confidence threshold 0.5 (the preset's)"
+    assert describe_fusion(dataclasses.replace(default, fusion="none")) is None
+    # `fuse` on a folder reconstruct wrote: the calibrated threshold when the shipped weights made it
+    (tmp_path / "config.json").write_text(json.dumps({"config": dataclasses.asdict(default)}))
+    assert shipped_weights_conf(tmp_path, "dynamic") == 0.15
+    (tmp_path / "config.json").write_text(json.dumps({"config": dataclasses.asdict(other)}))
+    assert shipped_weights_conf(tmp_path, "dynamic") is None
+    (tmp_path / "config.json").write_text("{not json")
+    assert shipped_weights_conf(tmp_path, "dynamic") is None

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from mvsformerpp.cli.reconstruct import add_model_args, print_summary, print_weights
+from mvsformerpp.cli.reconstruct import add_model_args, print_fusion, print_summary, print_weights
 
 
 def run(args: argparse.Namespace) -> int:
@@ -17,6 +17,7 @@ def run(args: argparse.Namespace) -> int:
     if not args.quiet:
         print(f"Reconstructing the Middlebury temple ({temple_dir()}; see README.txt there for its credits)")
     print_weights(describe_weights(config), args.quiet)
+    print_fusion(config, args.quiet)
     summary = run_demo(args.output, config, quiet=args.quiet)
     if not args.quiet:
         print_summary(summary, args.output)

@@ -42,13 +42,35 @@ def run(args: argparse.Namespace) -> int:
     from mvsformerpp.utils.device import parse_device
     from mvsformerpp.utils.output_guard import claim_output_file, writing
 
-    config = get_config(args.preset, conf_threshold=args.conf, disp_threshold=args.disp,
-                        num_consistent=args.num_consistent, num_src_views=args.num_src_views)
-    parse_device(args.device)
     if not Path(args.folder).is_dir():
         raise InputError("no such folder", args.folder)
+    conf = args.conf
+    if conf is None:
+        conf = shipped_weights_conf(Path(args.folder), get_config(args.preset).method)
+        if conf is not None and not args.quiet:
+            print(f"confidence threshold {conf:g}: calibrated for the default weights that made these depth maps "
+                  "(--conf sets another)")
+    config = get_config(args.preset, conf_threshold=conf, disp_threshold=args.disp,
+                        num_consistent=args.num_consistent, num_src_views=args.num_src_views)
+    parse_device(args.device)
     out = Path(args.output) if args.output else Path(args.folder) / "fused.ply"
     with claim_output_file(out, b"ply", "PLY"), writing(out):
         fuse(args.folder, out, config, device=args.device, quiet=args.quiet, memory_gb=args.memory_gb,
              mask_dir=args.mask_dir)
     return 0
+
+
+def shipped_weights_conf(folder, method: str) -> float | None:
+    """The threshold calibrated for the shipped weights when ``reconstruct`` made ``folder`` with them
+    (its config.json says so), else None."""
+    import json
+
+    from mvsformerpp.models import shipped
+
+    try:
+        cfg = json.loads((folder / "config.json").read_text())["config"]
+    except (OSError, ValueError, KeyError, TypeError):
+        return None  # not a reconstruct output folder: the preset's threshold
+    if not isinstance(cfg, dict) or cfg.get("checkpoint") is not None or cfg.get("preset") != shipped.SHIPPED_PRESET:
+        return None
+    return shipped.calibrated_conf(method)

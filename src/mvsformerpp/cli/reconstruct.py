@@ -51,6 +51,9 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
                                         "none"), default=_DEFAULT.fusion,
                    help=f"fusion preset (default: {_DEFAULT.fusion}; dtu, tnt_intermediate and tnt_advanced are the "
                         "paper's settings, see 'mvsformerpp fuse'); 'none' writes the depth maps only")
+    g.add_argument("--conf", type=float, metavar="C",
+                   help="fusion confidence threshold in [0, 1) (default: the one calibrated for the default weights "
+                        "when they run, else the preset's)")
     g.add_argument("--mask-dir", metavar="DIR",
                    help="object masks applied before fusion: one per photo, named like it or by view index "
                         "(DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
@@ -77,7 +80,8 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         max_size=args.max_size, memory_gb=args.memory_gb, num_views=args.views,
         depth_range=tuple(args.depth_range) if args.depth_range else None, max_images=args.max_images,
         depth_format=args.depth_format,
-        fusion=args.fusion, cache_mb=args.cache_mb, interval_scale=args.interval_scale, num_depth=args.num_depth,
+        fusion=args.fusion, fusion_conf=args.conf, cache_mb=args.cache_mb, interval_scale=args.interval_scale,
+        num_depth=args.num_depth,
         temperatures=tuple(args.temperatures),
         output_resolution=args.output_resolution, mask_dir=args.mask_dir,
         sfm=SfMConfig(camera_model=args.camera_model, single_camera=args.single_camera, matcher=args.matcher,
@@ -108,6 +112,15 @@ def print_weights(description: str, quiet: bool) -> None:
         print(f"warning: {description}", file=sys.stderr)
 
 
+def print_fusion(config, quiet: bool) -> None:
+    """Say how the depth maps will be fused (stdout; nothing with --quiet)."""
+    from mvsformerpp.pipelines.reconstruct import describe_fusion
+
+    line = describe_fusion(config)
+    if line and not quiet:
+        print(line)
+
+
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.pipelines.reconstruct import describe_weights, reconstruct
 
@@ -115,6 +128,7 @@ def run(args: argparse.Namespace) -> int:
         logging.getLogger("mvsformerpp").setLevel(logging.WARNING)
     config = config_from_args(args)
     print_weights(describe_weights(config), args.quiet)
+    print_fusion(config, args.quiet)
     summary = reconstruct(args.input, args.output, config, quiet=args.quiet)
     if not args.quiet:
         print_summary(summary, args.output)

@@ -53,6 +53,14 @@ def describe_shipped() -> str:
             f"not the paper's model) from {shipped_weights_path()}")
 
 
+def calibrated_conf(method: str) -> float | None:
+    """The fusion confidence threshold calibrated for the shipped weights and fusion ``method`` (normal,
+    dynamic, gipuma), or None when the record has none. Their confidences are lower than the paper
+    model's, for which the presets' thresholds were chosen (docs/model-card.md, "Fusion thresholds")."""
+    value = shipped_record().get("fusion_conf", {}).get(method)
+    return None if value is None else float(value)
+
+
 def verify(path: Path | None = None) -> Path:
     """Check the shipped file's presence, size and SHA-256 against the record; return its path."""
     record = shipped_record()

@@ -8,6 +8,8 @@
   ground-truth depth.
 - :func:`dtu_pair_quality`: the two real DTU views with ground-truth depth in ``tests/data/dtu_pair``:
   the share of valid ground-truth pixels within 4 mm and 8 mm, and within 10 % of the true depth.
+- :func:`calibrate_fusion_conf`: the fusion confidence threshold that suits a set of weights, chosen on
+  synthetic scenes of other seeds (:data:`CALIBRATION_SEED`) by the fused cloud's F-score.
 - :func:`temple_quality`: the Middlebury temple of the demo: fused points, the share inside the
   object's bounding box (its README), and the share of points that project onto the object in each
   photo (the background is black: the object is where the photo is brighter than :data:`DARK`).
@@ -25,6 +27,12 @@ from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
 HELDOUT_SEED = 5_000_000
 """First scene seed of the held-out synthetic evaluation (far from every training and validation seed)."""
+CALIBRATION_SEED = 2_000_000
+"""First scene seed of the fusion-threshold calibration (no training, validation or evaluation seed)."""
+CONF_GRID = tuple(round(0.05 * k, 2) for k in range(1, 15))
+"""Confidence thresholds tried by :func:`calibrate_fusion_conf` (0.05 .. 0.7)."""
+F_SCORE_TIE = 0.01
+"""Relative F-score difference under which two thresholds count as equally good."""
 DARK = 20
 """Temple photos: pixels whose brightest channel is at most this (of 255) are background."""
 
@@ -81,6 +89,70 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
             "accuracy_pct": float(np.mean(acc)) if acc else None,
             "completeness_pct": float(np.mean(comp)) if comp else None,
             "per_scene": per_scene}
+
+
+def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes: int = 4,
+                          seed: int = CALIBRATION_SEED, methods=("normal", "dynamic", "gipuma"),
+                          grid=CONF_GRID, tau_pct: float = 1.0, num_views: int = 5, height: int = 192,
+                          width: int = 256, quiet: bool = True) -> dict:
+    """For each fusion method, the confidence threshold of ``grid`` whose fused clouds have the best mean
+    F-score at ``tau_pct`` % of the mean scene depth, on ``scenes`` synthetic scenes of the training style
+    (seeds ``seed ..``) reconstructed with ``config``'s network."""
+    from mvsformerpp.synth import generate_scene
+
+    out = Path(out_dir)
+    folders = []
+    for k in range(scenes):
+        scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
+                                   width=width, style="train")
+        cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views),
+                                  fusion="none")
+        reconstruct(scene_dir, out / f"recon_{k}", cfg, quiet=quiet)
+        folders.append((scene_dir, out / f"recon_{k}"))
+    return {"scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
+            **choose_fusion_conf(folders, methods, grid, tau_pct)}
+
+
+def choose_fusion_conf(folders, methods=("normal", "dynamic", "gipuma"), grid=CONF_GRID,
+                       tau_pct: float = 1.0) -> dict:
+    """The F-score sweep of :func:`calibrate_fusion_conf` over (synthetic scene, depth-map folder) pairs:
+    ``{"fusion_conf": {method: threshold}, "tau_pct", "table": {method: [rows per threshold]}}``. Of the
+    thresholds whose F-score is within :data:`F_SCORE_TIE` of the best, the highest is chosen: real photos
+    are noisier than the synthetic scenes, so among equals the stricter filter."""
+    import tempfile
+
+    from mvsformerpp.evaluation.cloud import evaluate_clouds
+    from mvsformerpp.fusion import get_config
+    from mvsformerpp.io.pfm import read_pfm
+    from mvsformerpp.io.ply import ply_points, read_ply
+    from mvsformerpp.pipelines.fuse import fuse
+
+    truth = []
+    for scene_dir, _ in folders:
+        depths = [read_pfm(p) for p in sorted((Path(scene_dir) / "depth_gt").glob("*.pfm"))]
+        mean_depth = float(np.concatenate([d[d > 0] for d in depths]).mean())
+        truth.append((ply_points(read_ply(Path(scene_dir) / "gt_surface.ply")).astype(np.float64), mean_depth))
+    table, best = {}, {}
+    with tempfile.TemporaryDirectory() as tmp:
+        ply = Path(tmp) / "cloud.ply"
+        for method in methods:
+            rows = []
+            for conf in grid:
+                scores = []
+                for (_, depth_dir), (gt, mean_depth) in zip(folders, truth):
+                    fuse(depth_dir, ply, get_config(method, conf_threshold=conf), quiet=True, normals=False)
+                    pred = ply_points(read_ply(ply)).astype(np.float64)
+                    if len(pred) == 0:
+                        scores.append((0.0, 0.0, 0.0))
+                        continue
+                    m = evaluate_clouds(pred, gt, tau_pct / 100 * mean_depth)
+                    scores.append((m.precision, m.recall, m.f_score))
+                p, r, f = (float(np.mean(col)) for col in zip(*scores))
+                rows.append({"conf": conf, "precision": p, "recall": r, "f_score": f})
+            table[method] = rows
+            top = max(row["f_score"] for row in rows)
+            best[method] = max(row["conf"] for row in rows if row["f_score"] >= (1 - F_SCORE_TIE) * top)
+    return {"fusion_conf": best, "tau_pct": tau_pct, "table": table}
 
 
 def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: ReconstructConfig,

@@ -75,8 +75,8 @@ class ReconstructConfig:
     """Fusion preset (``mvsformerpp.fusion.PRESETS``; ``dtu``, ``tnt_intermediate`` and ``tnt_advanced`` are
     the reference's settings); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
     fusion_conf: float | None = None
-    """Override of the fusion preset's confidence threshold (None = the preset's); the shipped default weights'
-    confidences are low (not calibrated), so the demo fuses them at 0.1."""
+    """Override of the fusion preset's confidence threshold (``--conf``). None: the threshold calibrated for
+    the shipped default weights when they run (:func:`fusion_conf_for`), else the preset's."""
     output_resolution: Literal["original", "working"] = "original"
     """``original``: depth and confidence maps at each photo's size (upsampled from the working
     resolution); ``working``: at the working resolution, with ``images/`` resized and ``cams/`` scaled
@@ -363,6 +363,40 @@ def describe_weights(config: ReconstructConfig) -> str:
             "official model_best.pth), or use --preset lite for the shipped default weights")
 
 
+def uses_shipped_weights(config: ReconstructConfig) -> bool:
+    """Whether ``build_network(config)`` loads the weights shipped with the package."""
+    from mvsformerpp.models import shipped
+
+    return config.checkpoint is None and config.preset == shipped.SHIPPED_PRESET
+
+
+def fusion_conf_for(config: ReconstructConfig) -> float | None:
+    """The confidence threshold fusion runs with: ``fusion_conf`` when given; with the shipped weights, the
+    threshold calibrated for them and the preset's fusion method; otherwise None (the preset's own)."""
+    if config.fusion_conf is not None or config.fusion == "none" or not uses_shipped_weights(config):
+        return config.fusion_conf
+    from mvsformerpp.fusion import PRESETS
+    from mvsformerpp.models import shipped
+
+    return shipped.calibrated_conf(PRESETS[config.fusion].method)
+
+
+def describe_fusion(config: ReconstructConfig) -> str | None:
+    """One line saying how the depth maps will be fused (None without fusion)."""
+    if config.fusion == "none":
+        return None
+    from mvsformerpp.fusion import PRESETS
+
+    conf = fusion_conf_for(config)
+    if config.fusion_conf is not None:
+        why = "--conf"
+    elif conf is not None:
+        why = "calibrated for the default weights; --conf sets another"
+    else:
+        conf, why = PRESETS[config.fusion].conf_threshold, "the preset's"
+    return f"fusion: {config.fusion}, confidence threshold {conf:g} ({why})"
+
+
 def weights_id(config: ReconstructConfig) -> str:
     """Identity of the weights for the resume check (the shipped file's digest: new weights redo the views)."""
     from mvsformerpp.models import shipped
@@ -441,6 +475,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
     long_side = ranks.broadcast(choose_long_side(sizes, config.num_views, config.max_size, budget))
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
+    fusion_conf = config.fusion_conf if model is not None else fusion_conf_for(config)
     weights = None
     if model is None:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
@@ -460,7 +495,8 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
                 else:
                     folder.link_image(i, v.image_path)
         folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
-        folder.write_json("config.json", {"config": dataclasses.asdict(config), "resolved": resolved,
+        folder.write_json("config.json", {"config": dataclasses.asdict(config),
+                                          "resolved": {**resolved, "fusion_conf": fusion_conf},
                                           "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
                                           "source_format": full.source_format, "num_views_in_input": len(full)})
         return [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
@@ -505,12 +541,12 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
         ply = folder.root / "fused.ply"
         points = None
         if config.fusion != "none":
-            fusion_state = settings_hash({"depth": keys, "fusion": config.fusion, "conf": config.fusion_conf,
+            fusion_state = settings_hash({"depth": keys, "fusion": config.fusion, "conf": fusion_conf,
                                           **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir
                                              else {})})
             if not folder.fusion_done(fusion_state):
                 with disk_full_guard(ply):
-                    _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, config.fusion_conf,
+                    _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, fusion_conf,
                                 config.mask_dir)
                 folder.mark_fusion(fusion_state)
             from mvsformerpp.io.ply import ply_vertex_count
@@ -522,6 +558,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
             "views": len(scene),
             "points": points,
             "working_resolution": resolved,
+            "fusion_conf": fusion_conf,
             "preset": config.preset,
             "checkpoint": config.checkpoint,
             "weights": describe_weights(config) if model is None else "a network given by the caller",

@@ -91,7 +91,10 @@ def _fusion_threshold(run: RunFolder) -> float | None:
     name = cfg.get("fusion")
     if not name or name == "none":
         return None
-    if cfg.get("fusion_conf") is not None:  # --fusion-conf overrides the preset's threshold
+    resolved = run.config.get("resolved", {}).get("fusion_conf")  # --conf, or calibrated for the weights
+    if resolved is not None:
+        return float(resolved)
+    if cfg.get("fusion_conf") is not None:  # --conf overrides the preset's threshold
         return float(cfg["fusion_conf"])
     from mvsformerpp.fusion import get_config
 

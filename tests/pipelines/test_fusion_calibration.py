@@ -1,0 +1,36 @@
+"""The fusion-threshold calibration fuses real depth maps at each threshold and keeps the best F-score."""
+
+import shutil
+
+import numpy as np
+import pytest
+
+from mvsformerpp.io.pfm import read_pfm, write_pfm
+from mvsformerpp.pipelines.model_quality import choose_fusion_conf
+from mvsformerpp.synth import generate_scene
+
+
+def test_calibration_keeps_the_highest_threshold_that_loses_no_f_score(tmp_path):
+    """Exact depth everywhere, confidence 0.62 on the left half of each view and 0.32 on the right: any
+    threshold below 0.32 fuses the whole surface (equal F-scores), 0.35 .. 0.6 only half of it (recall
+    drops), 0.65 nothing. The sweep must see this through fusion and choose 0.3."""
+    scene = generate_scene(tmp_path / "scene", seed=4, num_views=5, height=72, width=96, gt_points=40_000)
+    maps = tmp_path / "maps"
+    shutil.copytree(scene, maps, ignore=shutil.ignore_patterns("depth_gt", "masks", "*.ply", "scene.json"))
+    (maps / "depth_est").mkdir()
+    (maps / "confidence").mkdir()
+    for p in sorted((scene / "depth_gt").glob("*.pfm")):
+        depth = read_pfm(p)
+        conf = np.full(depth.shape, 0.32, np.float32)
+        conf[:, : depth.shape[1] // 2] = 0.62
+        write_pfm(maps / "depth_est" / p.name, depth)
+        write_pfm(maps / "confidence" / p.name, conf)
+    grid = (0.1, 0.2, 0.3, 0.35, 0.5, 0.65)
+    result = choose_fusion_conf([(scene, maps)], methods=("normal", "dynamic"), grid=grid)
+    for method in ("normal", "dynamic"):
+        rows = {r["conf"]: r for r in result["table"][method]}
+        assert rows[0.1]["f_score"] == pytest.approx(rows[0.3]["f_score"], rel=1e-6)
+        assert rows[0.3]["precision"] > 0.95
+        assert rows[0.35]["recall"] < 0.8 * rows[0.3]["recall"]
+        assert rows[0.65]["f_score"] == 0.0
+        assert result["fusion_conf"][method] == 0.3
