@@ -234,6 +234,7 @@ CASES: list[Case] = [
     Case("recon-depth-line-negative", "a depth line with a negative MIN",
          lambda d: recon(d, src=_depth_lines(d, "-5 0.1 192 14")), "depth"),
     Case("recon-one-view", "--max-images 1", lambda d: recon(d, "--max-images", "1"), "at least 2"),
+    Case("recon-conf-out-of-range", "--conf 1.5", lambda d: recon(d, "--conf", "1.5"), "--conf"),
     # reconstruct: the output folder
     Case("recon-out-is-input", "-o is the input folder", lambda d: recon(d, out=d / "scene"), "is the input"),
     Case("recon-out-inside-input", "-o lies inside the input folder", lambda d: recon(d, out=d / "scene" / "o"),

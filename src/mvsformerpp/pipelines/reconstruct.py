@@ -109,7 +109,7 @@ class ReconstructConfig:
         if not self.interval_scale > 0:
             raise InputError(f"--interval-scale must be positive, got {self.interval_scale}")
         if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
-            raise InputError(f"fusion_conf must be in [0, 1), got {self.fusion_conf}")
+            raise InputError(f"--conf must be a confidence in [0, 1), got {self.fusion_conf}")
         if len(self.temperatures) != 4:
             raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
 
