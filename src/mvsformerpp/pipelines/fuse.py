@@ -147,20 +147,21 @@ def view_cache_bytes(pixels_per_view: int, num_sources: int, config: FusionConfi
 
 def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
          device: str = "cpu", quiet: bool = False, memory_gb: float | None = None,
-         mask_dir: str | Path | None = None, normals: bool = True) -> Path:
+         mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True) -> Path:
     """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path.
 
     ``memory_gb`` bounds the loaded views and working memory (default: half of the free memory).
     ``mask_dir``: object masks (:mod:`mvsformerpp.io.masks`); depths outside them are dropped before
     fusion. ``normals``: store each point's normal and confidence from its reference view's maps
-    (:mod:`mvsformerpp.fusion.normals`).
+    (:mod:`mvsformerpp.fusion.normals`). ``explain_empty``: when no point survives, log why and which
+    settings would keep points (trial fusions; parameter sweeps turn this off).
     """
-    return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals)["ply"]
+    return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty)["ply"]
 
 
 def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
                    device: str = "cpu", quiet: bool = False, memory_gb: float | None = None,
-                   mask_dir: str | Path | None = None, normals: bool = True) -> dict:
+                   mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True) -> dict:
     """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
     from mvsformerpp.inference.resolution import available_memory_bytes
 
@@ -192,7 +193,7 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
             else:
                 point_normals, confidence = attributes(finished[0], xyz)
                 ply.write(xyz, rgb, normals=point_normals, extra={"confidence": confidence})
-    if ply.count == 0:
+    if ply.count == 0 and explain_empty:
         from mvsformerpp.pipelines.empty_cloud import explain_empty_cloud
 
         def count_points(cand: FusionConfig) -> int:

@@ -140,7 +140,8 @@ def choose_fusion_conf(folders, methods=("normal", "dynamic", "gipuma"), grid=CO
             for conf in grid:
                 scores = []
                 for (_, depth_dir), (gt, mean_depth) in zip(folders, truth):
-                    fuse(depth_dir, ply, get_config(method, conf_threshold=conf), quiet=True, normals=False)
+                    fuse(depth_dir, ply, get_config(method, conf_threshold=conf), quiet=True, normals=False,
+                         explain_empty=False)
                     pred = ply_points(read_ply(ply)).astype(np.float64)
                     if len(pred) == 0:
                         scores.append((0.0, 0.0, 0.0))
