@@ -11,9 +11,9 @@ from pathlib import Path
 
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
-# The lite network at half the photos' size (320x240; about a minute on a 2-core CPU), five views per depth map,
+# The lite network at the photos' own size (640x480; about a minute on a 2-core CPU), five views per depth map,
 # dynamic fusion at the confidence threshold calibrated for the shipped weights (docs/model-card.md).
-DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=320, num_views=5, fusion="dynamic")
+DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=640, num_views=5, fusion="dynamic")
 
 
 def temple_dir() -> Path:
