@@ -34,6 +34,9 @@ def main() -> None:
     if args.run:
         run = Path(args.run)
         info["training_config"] = yaml.safe_load((run / "config.yaml").read_text())
+        init = info["training_config"].get("init_checkpoint")
+        if init:  # the record names the starting weights, not a path on the training machine
+            info["training_config"]["init_checkpoint"] = Path(init).name
         rows = [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines() if line.strip()]
         train_rows = [r for r in rows if "loss" in r]
         val_rows = [r for r in rows if any(k.startswith("val") for k in r)]
