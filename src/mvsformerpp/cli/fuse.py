@@ -71,6 +71,6 @@ def shipped_weights_conf(folder, method: str) -> float | None:
         cfg = json.loads((folder / "config.json").read_text())["config"]
     except (OSError, ValueError, KeyError, TypeError):
         return None  # not a reconstruct output folder: the preset's threshold
-    if not isinstance(cfg, dict) or cfg.get("checkpoint") is not None or cfg.get("preset") != shipped.SHIPPED_PRESET:
+    if not isinstance(cfg, dict) or not shipped.runs_shipped(cfg.get("preset"), cfg.get("checkpoint")):
         return None
     return shipped.calibrated_conf(method)

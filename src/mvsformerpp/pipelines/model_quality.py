@@ -64,9 +64,9 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
             cam = read_cam(scene_dir / "cams" / f"{i:08d}_cam.txt")
             valid = gt > 0
             tol = 0.01 * (cam.depth_max - cam.depth_min)
-            ok = np.abs(est[valid] - gt[valid]) < tol
-            s_within += int(ok.sum())
-            s_within10 += int((np.abs(est[valid] - gt[valid]) < 0.1 * gt[valid]).sum())
+            err = np.abs(est[valid] - gt[valid])
+            s_within += int((err < tol).sum())
+            s_within10 += int((err < 0.1 * gt[valid]).sum())
             s_total += int(valid.sum())
             depths.append(gt[valid])
         mean_depth = float(np.concatenate(depths).mean())

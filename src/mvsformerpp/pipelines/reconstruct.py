@@ -363,21 +363,15 @@ def describe_weights(config: ReconstructConfig) -> str:
             "official model_best.pth), or use --preset lite for the shipped default weights")
 
 
-def uses_shipped_weights(config: ReconstructConfig) -> bool:
-    """Whether ``build_network(config)`` loads the weights shipped with the package."""
-    from mvsformerpp.models import shipped
-
-    return config.checkpoint is None and config.preset == shipped.SHIPPED_PRESET
-
-
 def fusion_conf_for(config: ReconstructConfig) -> float | None:
     """The confidence threshold fusion runs with: ``fusion_conf`` when given; with the shipped weights, the
     threshold calibrated for them and the preset's fusion method; otherwise None (the preset's own)."""
-    if config.fusion_conf is not None or config.fusion == "none" or not uses_shipped_weights(config):
-        return config.fusion_conf
     from mvsformerpp.fusion import PRESETS
     from mvsformerpp.models import shipped
 
+    if config.fusion_conf is not None or config.fusion == "none" or not shipped.runs_shipped(config.preset,
+                                                                                             config.checkpoint):
+        return config.fusion_conf
     return shipped.calibrated_conf(PRESETS[config.fusion].method)
 
 
@@ -401,7 +395,7 @@ def weights_id(config: ReconstructConfig) -> str:
     """Identity of the weights for the resume check (the shipped file's digest: new weights redo the views)."""
     from mvsformerpp.models import shipped
 
-    if config.checkpoint is None and config.preset == shipped.SHIPPED_PRESET:
+    if shipped.runs_shipped(config.preset, config.checkpoint):
         return "shipped:" + shipped.shipped_record()["sha256"]
     return f"checkpoint:{config.checkpoint}" if config.checkpoint else f"random:{config.seed}"
 
