@@ -27,6 +27,9 @@ def register(sub: argparse._SubParsersAction) -> None:
                    help="classic: objects before a wall (tests); train: tables, rooms, facades and objects on a "
                    "ring with photo textures, gloss, exposure changes, blur and noise (the default model's training "
                    "data); heldout: a style training never sees (evaluation)")
+    p.add_argument("--sensor-width", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                   help="train/heldout styles: each view is a window of a photo whose width in pixels is drawn from "
+                   "LOW..HIGH (long focal lengths, as crops of high-resolution photos have)")
     p.set_defaults(func=run)
 
 
@@ -42,8 +45,13 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--height and --width must be at most {MAX_SIZE} and --views at most {MAX_VIEWS} "
                          f"(rendering needs about 100 bytes per pixel), got --height {args.height} --width "
                          f"{args.width} --views {args.views}")
+    if args.sensor_width is not None:
+        lo, hi = args.sensor_width
+        if args.style == "classic" or not 0 < lo <= hi <= MAX_SIZE * 8:
+            raise InputError(f"--sensor-width needs --style train or heldout and 0 < LOW <= HIGH <= {MAX_SIZE * 8}, "
+                             f"got {lo:g} {hi:g} with --style {args.style}")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
-              style=args.style)
+              style=args.style, sensor_width=args.sensor_width)
     with claim_output_folder(args.output, kind="synth", reuse=False):
         if args.scenes == 1:
             out = generate_scene(args.output, seed=args.seed, **kw)

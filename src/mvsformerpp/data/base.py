@@ -93,14 +93,21 @@ class MVSDataset(Dataset):
     def rng(self, key: SampleKey) -> np.random.Generator:
         return np.random.default_rng([self.seed, key.epoch, key.index])
 
+    def views(self, key: SampleKey, rng: np.random.Generator | None = None) -> ViewSet:
+        """The views of an item after the resize and crop: what the network is fed, as photos and cameras."""
+        rng = self.rng(key) if rng is None else rng
+        vs = self.load_views(key.index, rng, key.height, key.width)
+        if self.resize_crop is None:
+            return vs
+        return ViewSet(self.resize_crop(vs.views, key.height, key.width, rng, self.describe(key.index)),
+                       vs.depth_min, vs.depth_max)
+
     def __getitem__(self, key: SampleKey | int) -> dict:
         if not isinstance(key, SampleKey):
             raise TypeError("index the dataset with a SampleKey (index, height, width, epoch)")
         rng = self.rng(key)
-        vs = self.load_views(key.index, rng, key.height, key.width)
+        vs = self.views(key, rng)
         views = vs.views
-        if self.resize_crop is not None:
-            views = self.resize_crop(views, key.height, key.width, rng, self.describe(key.index))
         for v in views:
             if v.image.shape[:2] != (key.height, key.width):
                 raise ValueError(f"{self.describe(key.index)}: view is {v.image.shape[1]}x{v.image.shape[0]}, "

@@ -50,7 +50,9 @@ class SyntheticDataset(MVSDataset):
 
     Source views: ``num_views - 1`` drawn at random from the ``num_candidates`` nearest cameras of the
     reference (the reference draws 4 of the 10 pair.txt neighbours); the depth range is the reference
-    view's ground-truth range widened by 5 % on each side, as the synthetic writer's cam files.
+    view's ground-truth range widened by 5 % on each side, as the synthetic writer's cam files. A view
+    that is a window of a larger photo (:attr:`mvsformerpp.synth.render.Camera.sensor`) gets the range
+    of the whole photo (as a real crop gets its photo's cam-file range), joined with the window's own.
     Renders at the batch's size times ``render_scale`` (above 1 leaves room for the random crop).
     """
 
@@ -82,6 +84,7 @@ class SyntheticDataset(MVSDataset):
 
     def load_views(self, index: int, rng: np.random.Generator, height: int, width: int) -> ViewSet:
         from mvsformerpp.synth import render_view
+        from mvsformerpp.synth.render import sensor_depth_range
 
         scene_idx, ref = divmod(index, self.views_per_scene)
         h, w = round(height * self.render_scale), round(width * self.render_scale)
@@ -102,7 +105,11 @@ class SyntheticDataset(MVSDataset):
                     raise InputError(f"{self.describe(index)}: the reference view sees nothing")
                 lo, hi = self.range_margin
                 m_near, m_far = (lo, lo) if lo == hi else rng.uniform(lo, hi, size=2)
-                dmin, dmax = float(depth[valid].min()) * (1 - m_near), float(depth[valid].max()) * (1 + m_far)
+                near, far = float(depth[valid].min()), float(depth[valid].max())
+                photo = sensor_depth_range(scene, cam)
+                if photo is not None:
+                    near, far = min(near, photo[0]), max(far, photo[1])
+                dmin, dmax = near * (1 - m_near), far * (1 + m_far)
                 views.append(ViewData(image, np.asarray(cam.K, dtype=np.float64), E, depth, valid))
             else:
                 views.append(ViewData(image, np.asarray(cam.K, dtype=np.float64), E))

@@ -40,8 +40,11 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
 
 def run_training(config: TrainConfig, run_dir: str | Path, resume: bool = False, datasets=None) -> dict:
     """Train ``config`` into ``run_dir``; see :func:`mvsformerpp.training.train`."""
+    from mvsformerpp.training.parallax import check_parallax
     from mvsformerpp.training.trainer import train
 
+    if datasets is None and not resume:
+        check_parallax(config)  # before the run folder is touched
     run_dir = Path(run_dir)
     prepare_run_dir(config, run_dir, resume)
     return train(config, run_dir, resume=resume, datasets=datasets)

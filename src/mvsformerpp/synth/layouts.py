@@ -26,7 +26,7 @@ from __future__ import annotations
 import numpy as np
 
 from mvsformerpp.synth.photos import heldout_texture_set, texture_set
-from mvsformerpp.synth.render import Camera, Surface, SynthScene, look_at
+from mvsformerpp.synth.render import Camera, Surface, SynthScene, cast, look_at
 from mvsformerpp.synth.shapes import Box, Cylinder, Ellipsoid, Plane, Rect, Sphere
 
 LAYOUTS = ("table", "ring", "room", "facade")
@@ -80,6 +80,49 @@ def _intrinsics(rng: np.random.Generator, width: int, height: int, fov_deg=(22, 
     cx = width / 2 + rng.uniform(-0.03, 0.03) * width
     cy = height / 2 + rng.uniform(-0.03, 0.03) * height
     return np.array([[f, 0, cx], [0, f * rng.uniform(0.995, 1.005), cy], [0, 0, 1.0]])
+
+
+def _sensor_size(rng: np.random.Generator, width: int, height: int, sensor_width) -> tuple[int, int]:
+    """Size of the photo a ``width`` x ``height`` view is a window of: its width log-uniform in
+    ``sensor_width`` = (low, high) pixels (never below the view), the view's aspect ratio."""
+    if sensor_width is None:
+        return width, height
+    lo, hi = (float(v) for v in sensor_width)
+    if not 0 < lo <= hi:
+        raise ValueError(f"sensor_width {sensor_width} must be two widths 0 < low <= high (pixels)")
+    w = max(width, int(round(np.exp(rng.uniform(np.log(lo), np.log(hi))))))
+    return w, max(height, int(round(w * height / width)))
+
+
+def _cut_windows(rng: np.random.Generator, scene: SynthScene, sensor: tuple[int, int]) -> None:
+    """Make every camera of ``scene`` (intrinsics of a ``sensor``-sized photo) a window of the scene's size.
+
+    A real training crop is a window of a high-resolution photo: a long focal length in pixels, and so
+    the image shift per depth hypothesis that real photos have. All windows look at one anchor, a surface
+    point seen near a random spot of one photo, each placed around the anchor's projection with a random
+    offset and kept inside its photo, so the views overlap as crops around one place of a scene do.
+    """
+    wf, hf = sensor
+    w, h = scene.width, scene.height
+    if (wf, hf) == (w, h):
+        return
+    K = scene.cameras[0].K.copy()
+    first = scene.cameras[int(rng.integers(len(scene.cameras)))]
+    px = np.clip(rng.normal(0.5, 0.22, (32, 2)), 0.05, 0.95) * (wf, hf)
+    dirs = np.concatenate([px, np.ones((32, 1))], 1) @ np.linalg.inv(K).T @ first.R
+    t, _, _ = cast(scene, first.center, dirs)
+    hit = np.flatnonzero(np.isfinite(t))
+    ray = hit[0] if len(hit) else 0
+    anchor = first.center + (t[ray] if len(hit) else np.linalg.norm(first.center)) * dirs[ray]
+    for cam in scene.cameras:
+        p = K @ (cam.R @ anchor + cam.t)
+        u, v = (p[:2] / p[2]) if p[2] > 0 else (wf / 2, hf / 2)
+        x0 = np.round(np.clip(u - w / 2 + rng.uniform(-0.25, 0.25) * w, 0, wf - w))  # whole pixels: an exact crop
+        y0 = np.round(np.clip(v - h / 2 + rng.uniform(-0.25, 0.25) * h, 0, hf - h))
+        cam.K = K.copy()
+        cam.K[0, 2] -= x0
+        cam.K[1, 2] -= y0
+        cam.sensor = (K.copy(), wf, hf)
 
 
 def _framing_distance(rng: np.random.Generator, K: np.ndarray, half_extent: float) -> float:
@@ -276,13 +319,19 @@ def _facade(rng, n_views, K, n_objects):
 
 
 def training_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
-                   num_objects: int | None = None, layout: str | None = None) -> SynthScene:
-    """A random scene of one of :data:`LAYOUTS` (``layout`` None = drawn from the seed)."""
+                   num_objects: int | None = None, layout: str | None = None,
+                   sensor_width: tuple[float, float] | None = None) -> SynthScene:
+    """A random scene of one of :data:`LAYOUTS` (``layout`` None = drawn from the seed).
+
+    ``sensor_width`` (low, high): the views are ``width`` x ``height`` windows of photos whose width is
+    drawn from this range (see :func:`_cut_windows`); None: each view is a whole photo of that size.
+    """
     rng = np.random.default_rng([seed, 11])
     kind = layout if layout is not None else str(rng.choice(LAYOUTS, p=LAYOUT_WEIGHTS))
     if kind not in LAYOUTS:
         raise ValueError(f"unknown layout {kind!r}; choose one of {LAYOUTS}")
-    K = _intrinsics(rng, width, height)
+    sensor = _sensor_size(rng, width, height, sensor_width)
+    K = _intrinsics(rng, *sensor)
     void, plaster = False, False
     if kind == "table":
         surfaces, centers, targets = _table(rng, num_views, K, num_objects)
@@ -299,14 +348,17 @@ def training_scene(seed: int, num_views: int = 7, height: int = 256, width: int 
                        ambient=rng.uniform(0.1, 0.3) if plaster else rng.uniform(0.25, 0.6),
                        background=rng.uniform(0, 0.06, 3) if void else rng.uniform(0, 1, 3),
                        supersample=1, textures=texture_set()[1])  # the lens blur smooths edges: 4x faster
+    _cut_windows(rng, scene, sensor)
     return scene
 
 
 def heldout_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
-                  num_objects: int | None = None) -> SynthScene:
-    """The evaluation style: tilted shapes floating in a textured dome, a spiral camera path."""
+                  num_objects: int | None = None, sensor_width: tuple[float, float] | None = None) -> SynthScene:
+    """The evaluation style: tilted shapes floating in a textured dome, a spiral camera path
+    (``sensor_width`` as in :func:`training_scene`)."""
     rng = np.random.default_rng([seed, 23])
-    K = _intrinsics(rng, width, height)
+    sensor = _sensor_size(rng, width, height, sensor_width)
+    K = _intrinsics(rng, *sensor)
     kw = dict(photo_p=0.6, flat_p=0.1)
     surfaces = [_material(rng, Sphere(np.zeros(3), rng.uniform(5, 9)), 8.0, **kw)]  # seen from inside
     n = num_objects if num_objects is not None else int(rng.integers(4, 10))
@@ -333,6 +385,8 @@ def heldout_scene(seed: int, num_views: int = 7, height: int = 256, width: int =
         targets.append(rng.normal(0, 0.15, 3))
     cams = _cameras(rng, K, centers, targets, roll_deg=4.0)
     light = rng.normal(0, 1, 3)
-    return SynthScene(surfaces, cams, width, height, {"seed": seed, "style": "heldout", "layout": "dome"},
-                      light=light / np.linalg.norm(light), ambient=rng.uniform(0.3, 0.5),
-                      background=np.zeros(3), supersample=2, textures=heldout_texture_set())
+    scene = SynthScene(surfaces, cams, width, height, {"seed": seed, "style": "heldout", "layout": "dome"},
+                       light=light / np.linalg.norm(light), ambient=rng.uniform(0.3, 0.5),
+                       background=np.zeros(3), supersample=2, textures=heldout_texture_set())
+    _cut_windows(rng, scene, sensor)
+    return scene

@@ -51,6 +51,11 @@ class Camera:
     noise: float = 0.0
     """Sensor-noise standard deviation (in [0, 1] intensity units)."""
     noise_seed: int = 0
+    sensor: tuple[np.ndarray, int, int] | None = None
+    """(K, width, height) of the whole photo this view is a window of (None: the view is the whole photo).
+
+    ``K`` above is the window's intrinsics (the photo's with the principal point moved by the window's
+    offset); the photo's pixels share the window's pose, so z-depth is the same in both."""
 
     @property
     def center(self) -> np.ndarray:
@@ -90,7 +95,8 @@ STYLES = ("classic", "train", "heldout")
 
 
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
-                 num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic") -> SynthScene:
+                 num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic",
+                 sensor_width: tuple[float, float] | None = None) -> SynthScene:
     """A random scene, deterministic for (seed, style, sizes).
 
     ``classic``: several objects of different shapes, sizes, depths and textures on a ground plane
@@ -99,6 +105,8 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
     on a ring; photo textures, gloss, exposure changes, blur, noise) used to train the default model.
     ``heldout``: a style training never sees (floating ellipsoids and tilted boxes, other textures,
     spiral camera paths), for evaluation.
+    ``sensor_width`` (``train`` and ``heldout``): the views are windows of larger photos whose width in
+    pixels is drawn from this (low, high) range, as training crops of high-resolution photos are.
     """
     if style != "classic":
         from mvsformerpp.synth.layouts import heldout_scene, training_scene
@@ -106,7 +114,9 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
         if style not in STYLES:
             raise ValueError(f"unknown synthetic style {style!r}; choose one of {STYLES}")
         build = training_scene if style == "train" else heldout_scene
-        return build(seed, num_views, height, width, num_objects)
+        return build(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
+    if sensor_width is not None:
+        raise ValueError("sensor_width needs style 'train' or 'heldout'")
     rng = np.random.default_rng(seed)
     pal = lambda: rng.uniform(0.05, 0.95, size=(2, 3))  # noqa: E731
     surfaces = [
@@ -236,6 +246,26 @@ def _camera_effects(image: np.ndarray, cam: Camera) -> np.ndarray:
     if cam.noise > 0:
         image = image + np.random.default_rng(cam.noise_seed).normal(0, cam.noise, image.shape)
     return np.clip(image, 0, 1)
+
+
+def sensor_depth_range(scene: SynthScene, cam: Camera, grid: tuple[int, int] = (24, 32),
+                       percentiles: tuple[float, float] = (1.0, 99.0)) -> tuple[float, float] | None:
+    """Robust (near, far) z-depth of what the camera's whole photo sees (:attr:`Camera.sensor`), from a
+    sparse grid of rays: the range a cam file or sparse SfM points give for a real photo, of which a
+    training view is only a window. None when the camera has no sensor or the grid hits nothing."""
+    if cam.sensor is None:
+        return None
+    K, width, height = cam.sensor
+    ys, xs = np.meshgrid((np.arange(grid[0]) + 0.5) * height / grid[0], (np.arange(grid[1]) + 0.5) * width / grid[1],
+                         indexing="ij")
+    pix = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)], axis=1)
+    dirs = pix @ np.linalg.inv(K).T @ cam.R
+    t, _, _ = cast(scene, cam.center, dirs)
+    t = t[np.isfinite(t)]
+    if len(t) == 0:
+        return None
+    lo, hi = np.percentile(t, percentiles)
+    return float(lo), float(hi)
 
 
 def render_view(scene: SynthScene, cam: Camera):

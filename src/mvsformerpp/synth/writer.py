@@ -12,7 +12,7 @@ from mvsformerpp.errors import InputError
 from mvsformerpp.io.mvsnet import MVSNetCam, write_cam, write_pair
 from mvsformerpp.io.pfm import write_pfm
 from mvsformerpp.io.ply import write_ply
-from mvsformerpp.synth.render import random_scene, render_view
+from mvsformerpp.synth.render import random_scene, render_view, sensor_depth_range
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 
 
@@ -32,15 +32,18 @@ def _pairs(centers: np.ndarray, num_neighbors: int) -> dict:
 
 
 def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, height: int = 256, width: int = 320,
-                   num_objects: int | None = None, gt_points: int = 200_000, style: str = "classic") -> Path:
+                   num_objects: int | None = None, gt_points: int = 200_000, style: str = "classic",
+                   sensor_width: tuple[float, float] | None = None) -> Path:
     """Render a scene of ``style`` (see :func:`random_scene`) and write it (deterministic for a seed):
 
     ``images/NNNNNNNN.png``, ``cams/NNNNNNNN_cam.txt`` (4-number depth line from the GT depth range),
     ``pair.txt``, ``depth_gt/NNNNNNNN.pfm`` (exact z-depth), ``masks/NNNNNNNN.png`` (255 = valid
     depth), ``gt_surface.ply`` (coloured points on the visible surfaces) and ``scene.json``.
+    ``sensor_width``: the views are windows of larger photos (see :func:`random_scene`); their cam files
+    then hold the whole photo's depth range joined with the window's, as a real crop's would.
     """
     out = Path(out_dir)
-    scene = random_scene(seed, num_views, height, width, num_objects, style=style)
+    scene = random_scene(seed, num_views, height, width, num_objects, style=style, sensor_width=sensor_width)
     all_pts, all_rgb = [], []
     for i, cam in enumerate(scene.cameras):
         image, depth, pts = render_view(scene, cam)
@@ -51,7 +54,11 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
         _save_png(out / "images" / f"{stem}.png", image)
         _save_png(out / "masks" / f"{stem}.png", (valid * 255).astype(np.uint8))
         write_pfm(out / "depth_gt" / f"{stem}.pfm", depth)
-        dmin, dmax = float(depth[valid].min()) * 0.95, float(depth[valid].max()) * 1.05
+        near, far = float(depth[valid].min()), float(depth[valid].max())
+        photo = sensor_depth_range(scene, cam)
+        if photo is not None:
+            near, far = min(near, photo[0]), max(far, photo[1])
+        dmin, dmax = near * 0.95, far * 1.05
         E = np.eye(4)
         E[:3, :3], E[:3, 3] = cam.R, cam.t
         write_cam(out / "cams" / f"{stem}_cam.txt",
@@ -67,6 +74,7 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
     write_ply(out / "gt_surface.ply", pts.astype(np.float32), rgb)
     atomic_write_text(out / "scene.json", json.dumps(
         {"seed": seed, "style": style, "num_views": num_views, "height": height, "width": width,
+         "sensor_width": None if sensor_width is None else [float(v) for v in sensor_width],
          "surfaces": [type(s.shape).__name__ + ":" + s.texture for s in scene.surfaces]}, indent=2))
     return out
 

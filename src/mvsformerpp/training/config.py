@@ -85,6 +85,12 @@ class TrainConfig:
     """Depth-range margin of training samples: each end of the reference view's true range is widened by a
     fraction drawn uniformly from this interval (validation: 5 %). Wider draws teach the loose ranges of
     real cam files and sparse points."""
+    parallax_range: tuple[float, float] | None = None
+    """Declared (low, high) image shift per depth plane at stage 4, in input pixels, that the training
+    views cover: a run starts only if the 10th-90th percentiles of sampled views lie inside it
+    (:mod:`mvsformerpp.training.parallax`). None: no check."""
+    parallax_samples: int = 32
+    """Training samples the ``parallax_range`` check draws."""
     # ---- optimisation
     batch_size: int = 4
     """Global batch (all processes together); the reference: 16 on 4 GPUs."""
@@ -155,7 +161,8 @@ class TrainConfig:
 
 
 # Fields that may change when a run resumes: they do not touch the training trajectory.
-RESUMABLE_CHANGES = frozenset({"num_workers", "val_every", "val_samples", "log_every", "save_every", "tensorboard",
+RESUMABLE_CHANGES = frozenset({"parallax_range", "parallax_samples", "num_workers", "val_every", "val_samples",
+                               "log_every", "save_every", "tensorboard",
                                "progress", "data_root", "dtu_root"})
 
 # The reference's 25 multi-scale resolutions (spec section 9: 512x640 ... 1024x1280, three widths per height
@@ -310,6 +317,10 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError("batch_size must be >= 1 and max_steps/epochs >= 0")
     if config.save_every < 1 or config.log_every < 1:
         raise InputError("save_every and log_every must be >= 1")
+    if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
+        raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
+    if config.parallax_samples < 1:
+        raise InputError(f"parallax_samples must be at least 1, got {config.parallax_samples}")
     return config
 
 

@@ -1,0 +1,214 @@
+"""Image shift per depth hypothesis: what each cascade stage must resolve, for training views and real photos.
+
+A stage tells its hypotheses apart only by where they project in the source views. For a reference pixel
+of true depth d, stage s's neighbouring planes sit ``step_s`` apart in inverse depth around 1/d, and
+their projections into a source view lie ``shift_s`` pixels apart, counted at that stage's own
+resolution (1/8, 1/4, 1/2, 1 of the input). The steps follow the network's hypothesis rule
+(:mod:`mvsformerpp.models.hypotheses`): stage 1 spreads ``D_1`` planes over the inverse-depth range,
+stage s > 1 ``D_s`` planes over ``2 ratio_s`` of the previous stage's step.
+
+A view set's shift at a stage is the median over its source views of each view's median over the
+reference's valid pixels. A training recipe whose views have far smaller shifts than the photos the
+network is used on never trains its fine stages; :func:`recipe_shifts` samples a recipe's views and
+:func:`check_parallax` refuses a recipe whose views fall outside the range it declares
+(``parallax_range``).
+
+``python -m mvsformerpp.training.parallax RECIPE_OR_CONFIG [--samples N] [--set key=value ...]`` prints the
+distribution for a recipe; ``--scene DIR`` for an MVSNet-layout folder with depth maps.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+
+import numpy as np
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.models.inputs import STAGE_SCALES
+
+SCALES = tuple(STAGE_SCALES.values())
+PERCENTILES = (10, 50, 90)
+
+
+def plane_steps(num_hypotheses, ratios) -> np.ndarray:
+    """Each stage's inverse-depth step as a fraction of the range's inverse span (1/dmin - 1/dmax)."""
+    steps = [1.0 / (num_hypotheses[0] - 1)]
+    for d, r in zip(num_hypotheses[1:], ratios[1:]):
+        steps.append(2.0 * r * steps[-1] / (d - 1))
+    return np.asarray(steps)
+
+
+def _default_steps() -> np.ndarray:
+    from mvsformerpp.models.config import get_config
+
+    cfg = get_config("lite")
+    return plane_steps(cfg.num_hypotheses, cfg.hypothesis_ratio)
+
+
+def view_shifts(K_ref, E_ref, K_src, E_src, depth: np.ndarray, depth_min: float, depth_max: float,
+                steps: np.ndarray | None = None, max_points: int = 4000) -> np.ndarray:
+    """Median shift per plane (pixels at each stage's resolution) of one source view, one value per stage.
+
+    ``depth``: the reference's true depth (0 = unknown); cameras as 3x3 intrinsics and 4x4 world-to-camera.
+    NaN where no valid pixel projects in front of the source camera.
+    """
+    steps = _default_steps() if steps is None else np.asarray(steps)
+    ys, xs = np.nonzero(depth > 0)
+    if len(ys) == 0:
+        return np.full(len(steps), np.nan)
+    if len(ys) > max_points:
+        pick = np.linspace(0, len(ys) - 1, max_points).astype(np.int64)
+        ys, xs = ys[pick], xs[pick]
+    inv = 1.0 / depth[ys, xs].astype(np.float64)
+    rays = np.stack([xs + 0.5, ys + 0.5, np.ones_like(inv)]) .T @ np.linalg.inv(K_ref).T  # z = 1
+    R, t = np.asarray(E_ref)[:3, :3], np.asarray(E_ref)[:3, 3]
+    Rs, ts = np.asarray(E_src)[:3, :3], np.asarray(E_src)[:3, 3]
+    span = 1.0 / depth_min - 1.0 / depth_max
+    out = []
+    for step, scale in zip(steps, SCALES):
+        half = 0.5 * step * span
+        ends = []
+        for q in (np.maximum(inv - half, 1e-3 * inv), inv + half):
+            world = (rays / q[:, None] - t) @ R  # R^T (X_cam - t)
+            cam = world @ Rs.T + ts
+            ends.append(cam)
+        front = (ends[0][:, 2] > 0) & (ends[1][:, 2] > 0)
+        if not front.any():
+            out.append(np.nan)
+            continue
+        pix = [(np.asarray(K_src) @ c[front].T).T for c in ends]
+        uv = [p[:, :2] / p[:, 2:] for p in pix]
+        out.append(float(np.median(np.linalg.norm(uv[0] - uv[1], axis=1))) * scale)
+    return np.asarray(out)
+
+
+def viewset_shifts(views, depth_min: float, depth_max: float, steps: np.ndarray | None = None) -> np.ndarray:
+    """A view set's shift per stage: the median over its source views (``views[0]`` the reference with depth)."""
+    ref = views[0]
+    per_view = np.stack([view_shifts(ref.K, ref.E, v.K, v.E, ref.depth * (ref.mask if ref.mask is not None else 1),
+                                     depth_min, depth_max, steps) for v in views[1:]])
+    return np.nanmedian(per_view, axis=0)
+
+
+def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray]:
+    """(shifts [samples, 4], focal lengths [samples]) of a training config's views as training feeds them:
+    evenly spaced samples of the training set, each at the next of the recipe's resolutions."""
+    from mvsformerpp.data.base import SampleKey
+    from mvsformerpp.models.config import get_config
+    from mvsformerpp.training.datasets import build_datasets
+
+    cfg = get_config(config.preset)
+    steps = plane_steps(cfg.num_hypotheses, cfg.hypothesis_ratio)
+    train, _ = build_datasets(config)
+    sizes = list(config.resolutions) or [(config.height, config.width)]
+    picks = np.linspace(0, len(train) - 1, samples).astype(np.int64)
+    shifts, focals = [], []
+    for k, index in enumerate(picks):
+        h, w = sizes[k % len(sizes)]
+        vs = train.views(SampleKey(int(index), int(h), int(w)))
+        shifts.append(viewset_shifts(vs.views, vs.depth_min, vs.depth_max, steps))
+        focals.append(float(vs.views[0].K[0, 0]))
+    return np.stack(shifts), np.asarray(focals)
+
+
+def scene_shifts(folder, max_size: int | None = None, steps: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """(shifts [4], median focal) of an MVSNet-layout folder whose cams come with ``depth_map_NNNN.pfm``
+    ground truth of the cams' resolution: every view with depth is a reference, all others its sources.
+    ``max_size``: the working size (longest side) the photos run at (default: the depth maps' size)."""
+    from pathlib import Path
+
+    from mvsformerpp.data.base import ViewData
+    from mvsformerpp.io.mvsnet import read_cam
+    from mvsformerpp.io.pfm import read_pfm
+
+    folder = Path(folder)
+    cams = sorted(folder.glob("*_cam.txt")) or sorted((folder / "cams").glob("*_cam.txt"))
+    if len(cams) < 2:
+        raise InputError(f"{folder}: needs at least two cam files (NNNNNNNN_cam.txt)")
+    views, ranges, scales = [], [], []
+    for i, path in enumerate(cams):
+        cam = read_cam(path)
+        found = sorted(folder.glob(f"depth_map_{i:04d}.pfm")) + sorted(folder.glob(f"depths/depth_map_{i:04d}.pfm"))
+        depth = read_pfm(found[0]) if found else None
+        views.append(ViewData(np.zeros((1, 1, 3), np.uint8), np.asarray(cam.K, np.float64),
+                              np.asarray(cam.extrinsic, np.float64), depth))
+        ranges.append((cam.depth_min, cam.depth_max))
+        if depth is not None:
+            scales.append(1.0 if max_size is None else max_size / max(depth.shape))
+    out = []
+    for r, ref in enumerate(views):
+        if ref.depth is None or ranges[r][0] is None:
+            continue
+        others = [v for j, v in enumerate(views) if j != r]
+        out.append(viewset_shifts([ref] + others, *ranges[r], steps) * scales[len(out)])
+    if not out:
+        raise InputError(f"{folder}: no depth_map_NNNN.pfm with a depth range in its cam file; the shifts need "
+                         "true depth")
+    return np.nanmedian(np.stack(out), axis=0), float(np.median([v.K[0, 0] for v in views]) * np.median(scales))
+
+
+def check_parallax(config, samples: int | None = None) -> np.ndarray | None:
+    """Refuse a config whose training views fall outside its declared ``parallax_range`` (stage-4 pixels):
+    the 10th and 90th percentiles of the sampled views' stage-4 shift must lie inside it. Returns the
+    sampled shifts (None when the config declares no range)."""
+    if config.parallax_range is None:
+        return None
+    lo, hi = config.parallax_range
+    shifts, _ = recipe_shifts(config, samples or config.parallax_samples)
+    p10, p90 = np.nanpercentile(shifts[:, 3], [10, 90])
+    if p10 < lo or p90 > hi:
+        raise InputError(
+            f"the recipe's training views have stage-4 shifts of {p10:.2f}-{p90:.2f} px per plane (10th-90th "
+            f"percentile of {len(shifts)} samples), outside its declared parallax_range [{lo:g}, {hi:g}]; change "
+            "the views (synthetic_options: sensor_width, resolutions) or the declared range "
+            "(python -m mvsformerpp.training.parallax RECIPE prints the distribution)")
+    return shifts
+
+
+def format_table(rows: dict[str, tuple[np.ndarray, np.ndarray | float]]) -> str:
+    """Rows of (shifts [N, 4] or [4], focal(s)) as a text table: percentiles for sampled rows."""
+    lines = [f"{'':34s} {'stage 1':>16s} {'stage 2':>16s} {'stage 3':>16s} {'stage 4':>16s} {'focal (px)':>16s}",
+             f"{'(px per plane, own resolution)':34s}" + "".join(f"{'p10/p50/p90':>17s}" for _ in range(5))]
+    for name, (shifts, focal) in rows.items():
+        shifts = np.atleast_2d(shifts)
+        focal = np.atleast_1d(focal)
+        if len(shifts) == 1:
+            cells = [f"{v:16.2f}" for v in shifts[0]] + [f"{np.median(focal):16.0f}"]
+        else:
+            cells = ["{:>16s}".format("/".join(f"{v:.2f}" for v in np.nanpercentile(shifts[:, k], PERCENTILES)))
+                     for k in range(shifts.shape[1])]
+            cells.append("{:>16s}".format("/".join(f"{v:.0f}" for v in np.percentile(focal, PERCENTILES))))
+        lines.append(f"{name:34s} " + " ".join(cells))
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    from mvsformerpp.training.config import load_config, parse_overrides
+
+    p = argparse.ArgumentParser(prog="python -m mvsformerpp.training.parallax", description=__doc__.split("\n\n")[0])
+    p.add_argument("config", nargs="*", metavar="RECIPE_OR_CONFIG", help="recipes or YAML configs to sample")
+    p.add_argument("--samples", type=int, default=48, help="training samples per recipe (default 48)")
+    p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE", help="override a config field")
+    p.add_argument("--scene", action="append", default=[], metavar="DIR",
+                   help="an MVSNet-layout folder with depth_map_NNNN.pfm ground truth (a real-photo row)")
+    p.add_argument("--max-size", type=int, help="--scene rows: the working size (longest side, pixels)")
+    args = p.parse_args(argv)
+    if args.samples < 1:
+        p.error("--samples must be at least 1")
+    rows = {}
+    try:
+        for spec in args.config:
+            config = load_config(spec, parse_overrides(args.set))
+            rows[spec] = recipe_shifts(config, args.samples)
+        for folder in args.scene:
+            rows[folder] = scene_shifts(folder, max_size=args.max_size)
+    except InputError as e:
+        print(f"error: {e}", file=sys.stderr)
+        return 2
+    print(format_table(rows))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
