@@ -174,3 +174,39 @@ def test_ranks_of_one_job_share_the_lock_of_rank_0(tmp_path, monkeypatch):
         with pytest.raises(output_guard.FolderBusyError):  # another job's rank 0 does not
             with output_guard.claim_output_folder(out):
                 pass
+
+
+@pytest.mark.parametrize("command", ["mesh", "report", "json", "plot", "error-ply"])
+def test_no_command_overwrites_a_file_of_another_kind(synth_run, tmp_path, capsys, command):
+    """mesh -o, report -o, evaluate --json/--plot/--error-ply replace only a file of the kind they write."""
+    from mvsformerpp.cli import main
+    from mvsformerpp.utils.output_guard import check_replaceable
+
+    photo = tmp_path / "photo.png"
+    photo.write_bytes(b"\x89PNG\r\n\x1a\n" + bytes(range(256)))  # a user's photo
+    notes = tmp_path / "notes.txt"
+    notes.write_text("my notes\n")
+    cloud = str(synth_run / "fused.ply")
+    args = {"mesh": ["mesh", str(synth_run), "-o", str(photo)],
+            "report": ["report", str(synth_run), "-o", str(photo)],
+            "json": ["evaluate", "cloud", cloud, cloud, "--threshold", "0.1", "--json", str(photo)],
+            "plot": ["evaluate", "cloud", cloud, cloud, "--threshold", "0.1", "--plot", str(notes.with_suffix(".png"))],
+            "error-ply": ["evaluate", "cloud", cloud, cloud, "--threshold", "0.1", "--error-ply",
+                          str(tmp_path / "err.ply")]}[command]
+    if command == "plot":
+        notes.rename(notes.with_suffix(".png"))
+        photo = notes.with_suffix(".png")
+    if command == "error-ply":
+        photo = tmp_path / "err_precision.ply"
+        photo.write_text("not a cloud\n")
+    before = photo.read_bytes()
+    assert main(args) == 2
+    err = capsys.readouterr().err
+    assert "not overwritten" in err and photo.name in err
+    assert photo.read_bytes() == before
+    # a file of the command's own kind is replaced as before (the mesh's check: below, without meshing)
+    if command in ("report", "json"):
+        own = tmp_path / {"report": "r.html", "json": "r.json"}[command]
+        args[args.index(str(photo))] = str(own)
+        assert main(args) == 0 and main(args) == 0
+    check_replaceable(synth_run / "fused.ply", (b"ply",), "PLY mesh")

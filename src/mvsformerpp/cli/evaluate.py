@@ -11,7 +11,7 @@ import numpy as np
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.utils.atomic import atomic_write_text
-from mvsformerpp.utils.output_guard import writing
+from mvsformerpp.utils.output_guard import check_replaceable, writing
 
 
 def _positive(flag: str, *values: float) -> None:
@@ -32,6 +32,7 @@ def _write_json(path: str | None, payload) -> None:
                 return [clean(x) for x in v]
             return v
 
+        check_replaceable(path, (b"{", b"["), "JSON", "--json")
         with writing(path):
             atomic_write_text(path, json.dumps(clean(payload), indent=2) + "\n")
         print(f"wrote {path}")
@@ -59,6 +60,26 @@ def _extras(dist, args, threshold: float, pred_pts, gt_pts) -> None:
     if args.plot:
         plot_pr_curves(args.plot, dist.curve(np.linspace(0, 5 * threshold, 101)[1:]), threshold)
         print(f"wrote {args.plot}")
+
+
+def _checked(command):
+    """``command`` after a check that the files it will write replace nothing but their own kind (before the
+    evaluation, which can take minutes)."""
+    from mvsformerpp.evaluation.visualize import PLOT_MAGICS
+
+    def run(args) -> int:
+        if getattr(args, "json", None):
+            check_replaceable(args.json, (b"{", b"["), "JSON", "--json")
+        if getattr(args, "plot", None):
+            suffix = Path(args.plot).suffix.lstrip(".").lower() or "png"
+            check_replaceable(args.plot, PLOT_MAGICS.get(suffix, (b"\x89PNG",)), "plot", "--plot")
+        if getattr(args, "error_ply", None):
+            out = Path(args.error_ply)
+            for suffix in ("_precision.ply", "_recall.ply"):
+                check_replaceable(out.with_name(out.stem + suffix), (b"ply",), "PLY", "--error-ply")
+        return command(args)
+
+    return run
 
 
 def _cmd_cloud(args) -> int:
@@ -196,7 +217,7 @@ def register(subparsers) -> None:
     p.add_argument("--threshold", type=float, required=True, help="distance threshold, in the clouds' unit")
     p.add_argument("--json", metavar="OUT.json", help="write precision, recall, f_score, accuracy, completeness")
     _view_args(p)
-    p.set_defaults(func=_cmd_cloud)
+    p.set_defaults(func=_checked(_cmd_cloud))
 
     p = sub.add_parser("depth", help="depth-map metrics over folders of PFM files matched by name")
     p.add_argument("pred_dir", help="folder of predicted depth maps (.pfm)")
@@ -208,7 +229,7 @@ def register(subparsers) -> None:
                    help="unit of --thresholds in depth units (BlendedMVS: the depth interval with --thresholds 1 3)")
     p.add_argument("--inlier-ratio", type=float, default=1.03, help="inlier if max(pred/gt, gt/pred) < this")
     p.add_argument("--json", metavar="OUT.json", help="write overall and per-view metrics")
-    p.set_defaults(func=_cmd_depth)
+    p.set_defaults(func=_checked(_cmd_depth))
 
     p = sub.add_parser("dtu", help="official DTU protocol (acc/comp/overall in mm) without MATLAB")
     p.add_argument("pred", help="a fused PLY (with one --scans) or a folder of per-scan PLYs")
@@ -222,7 +243,7 @@ def register(subparsers) -> None:
     p.add_argument("--plot", metavar="OUT.png", help="per-scan bar chart (needs [plot])")
     p.add_argument("--error-ply-dir", "--error-clouds", dest="error_ply_dir", metavar="DIR",
                    help="write scan{N}_accuracy.ply / scan{N}_completeness.ply coloured by error (0-2 mm)")
-    p.set_defaults(func=_cmd_dtu)
+    p.set_defaults(func=_checked(_cmd_dtu))
 
     p = sub.add_parser("tnt", help="Tanks-and-Temples precision/recall/F-score")
     _cloud_args(p)
@@ -236,7 +257,7 @@ def register(subparsers) -> None:
                         "with scale, three rounds)")
     p.add_argument("--json", metavar="OUT.json", help="write the metrics")
     _view_args(p)
-    p.set_defaults(func=_cmd_tnt)
+    p.set_defaults(func=_checked(_cmd_tnt))
 
     p = sub.add_parser("tnt-submit", aliases=["tnt-package"], help="package a Tanks-and-Temples leaderboard folder")
     p.add_argument("out_dir", help="submission folder to write")
@@ -250,4 +271,4 @@ def register(subparsers) -> None:
     p.add_argument("--tolerances", type=float, nargs="+", default=[0.01, 0.02, 0.05, 0.1, 0.2, 0.5],
                    help="tolerances in metres (default: 1 2 5 10 20 50 cm)")
     p.add_argument("--json", metavar="OUT.json", help="write the table")
-    p.set_defaults(func=_cmd_eth3d)
+    p.set_defaults(func=_checked(_cmd_eth3d))

@@ -9,6 +9,7 @@ import numpy as np
 from mvsformerpp.errors import MissingDependencyError
 from mvsformerpp.io.ply import write_ply
 from mvsformerpp.utils.atomic import atomic_open
+from mvsformerpp.utils.output_guard import check_replaceable
 
 # Colour ramp for errors, blue (0) -> cyan -> green -> yellow -> red (>= max): anchors at equal steps.
 _RAMP = np.array([[0, 0, 255], [0, 255, 255], [0, 255, 0], [255, 255, 0], [255, 0, 0]], dtype=np.float64)
@@ -27,6 +28,7 @@ def write_error_ply(path: str | Path, points: np.ndarray, distances: np.ndarray,
     points, distances = np.asarray(points), np.asarray(distances)
     if len(points) != len(distances):
         raise ValueError(f"{len(points)} points but {len(distances)} distances")
+    check_replaceable(path, (b"ply",), "PLY", "--error-ply")
     write_ply(path, points, rgb=error_colors(distances, max_dist), extra={"error": distances.astype(np.float32)})
 
 
@@ -41,8 +43,14 @@ def _pyplot():
     return plt
 
 
+# What a plot file of each format starts with: only such a file is replaced.
+PLOT_MAGICS = {"png": (b"\x89PNG",), "pdf": (b"%PDF",), "svg": (b"<?xml", b"<svg"), "jpg": (b"\xff\xd8",),
+               "jpeg": (b"\xff\xd8",), "eps": (b"%!PS",), "ps": (b"%!PS",)}
+
+
 def _save(fig, path: str | Path) -> None:
-    suffix = Path(path).suffix.lstrip(".") or "png"
+    suffix = Path(path).suffix.lstrip(".").lower() or "png"
+    check_replaceable(path, PLOT_MAGICS.get(suffix, (b"\x89PNG", b"%PDF", b"<?xml", b"<svg")), "plot", "--plot")
     with atomic_open(path, "wb") as f:
         fig.savefig(f, format=suffix, dpi=120, bbox_inches="tight")
 

@@ -39,10 +39,12 @@ class MeshConfig:
 def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = MeshConfig(), quiet: bool = False) -> Mesh:
     """Mesh the reconstruction in ``folder`` and write it to ``out_ply`` (binary PLY with vertex colours)."""
     from mvsformerpp.io.ply import write_ply
+    from mvsformerpp.utils.output_guard import check_replaceable
 
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", folder)
+    check_replaceable(out_ply, (b"ply",), "PLY mesh")
     t0 = time.perf_counter()
     mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config)
     if len(mesh.faces) == 0:

@@ -183,6 +183,23 @@ def _remove_if_unused(out: Path) -> None:
             shutil.rmtree(out, ignore_errors=True)
 
 
+def check_replaceable(path: str | Path, magics: Sequence[bytes], what: str, flag: str = "-o") -> None:
+    """Refuse to replace ``path`` unless it is new or a file of the kind about to be written (it starts with
+    one of ``magics``): every command that writes a file replaces only its own kind, never a photo or a
+    document that happens to sit at that name."""
+    path = Path(path)
+    if not path.exists():
+        return
+    if not path.is_file():
+        raise InputError(f"the output exists and is not a file; choose another {flag} {what}", path)
+    with open(path, "rb") as f:
+        head = f.read(max(len(m) for m in magics))
+    if not any(head.startswith(m) for m in magics):
+        article = "an" if what[:1] in "AEIOUaeiou" or what.startswith("HTML") else "a"
+        raise InputError(f"the output exists and is not {article} {what} file; choose another {flag} so that it is "
+                         "not overwritten", path)
+
+
 @contextlib.contextmanager
 def claim_output_file(path: str | Path, magic: bytes, what: str) -> Iterator[Path]:
     """Check that ``path`` is new or a file of this kind (it starts with ``magic``), then hold it for the block.
@@ -192,13 +209,7 @@ def claim_output_file(path: str | Path, magic: bytes, what: str) -> Iterator[Pat
     left for this file name are removed.
     """
     path = Path(path)
-    if path.exists():
-        if not path.is_file():
-            raise InputError(f"the output exists and is not a file; choose another -o {what}", path)
-        with open(path, "rb") as f:
-            if f.read(len(magic)) != magic:
-                raise InputError(f"the output exists and is not a {what} file; choose another -o so that it is "
-                                 "not overwritten", path)
+    check_replaceable(path, (magic,), what)
     folder = path.parent
     lock = folder_lock(folder) if _written_by(folder) is not None else contextlib.nullcontext()
     with lock:

@@ -20,6 +20,7 @@ import numpy as np
 
 from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.colormap import colorize, turbo
+from mvsformerpp.utils.output_guard import check_replaceable
 from mvsformerpp.viewer.folder import RunFolder, ViewFiles, depth_range_of, open_run
 
 THUMB_SIDE = 280
@@ -123,6 +124,15 @@ def view_statistics(view: ViewFiles, conf_threshold: float | None) -> dict[str, 
     return stats
 
 
+def _weights_of_old_run(cfg: dict) -> str:
+    """The weights of a run folder written before config.json named them."""
+    from mvsformerpp.models.shipped import runs_shipped
+
+    if cfg.get("checkpoint"):
+        return str(cfg["checkpoint"])
+    return "the shipped default weights" if runs_shipped(cfg.get("preset"), None) else "random initialisation"
+
+
 def collect(run: RunFolder) -> dict[str, Any]:
     """The run's facts as plain data (what the report and the console summary say)."""
     cfg = run.config.get("config", {})
@@ -138,6 +148,7 @@ def collect(run: RunFolder) -> dict[str, Any]:
         "canvas": resolved.get("canvas"),
         "preset": cfg.get("preset"),
         "checkpoint": cfg.get("checkpoint"),
+        "weights": resolved.get("weights") or _weights_of_old_run(cfg),
         "device": cfg.get("device"),
         "precision": cfg.get("precision"),
         "views_per_depth_map": cfg.get("num_views"),
@@ -270,7 +281,7 @@ def render_report(run: RunFolder) -> str:
                                          if facts["views_in_input"] else "")),
         ("working resolution", f"long side {facts['working_long_side']} px, canvas {canvas[0]}x{canvas[1]}"
          if facts["working_long_side"] and canvas else "-"),
-        ("network", html.escape(f"{facts['preset']} ({facts['checkpoint'] or 'random weights'}), "
+        ("network", html.escape(f"{facts['preset']} ({facts['weights']}), "
                                 f"{facts['device']}, {facts['precision']}, "
                                 f"{facts['views_per_depth_map']} views per depth map")),
         ("fused points", f"{facts['points']:,}" if facts["points"] is not None else "none (fusion off)"),
@@ -305,5 +316,6 @@ def write_report(folder: str | Path, out: str | Path | None = None) -> Path:
     """Write the report of an output folder (default ``folder/report.html``); returns its path."""
     run = open_run(folder)
     out = Path(out) if out is not None else run.root / "report.html"
+    check_replaceable(out, (b"<!DOCTYPE html",), "HTML report")
     atomic_write_text(out, render_report(run))
     return out
