@@ -9,7 +9,8 @@ stores them in the shipped record. Without it, the shipped weights fuse with the
 thresholds and other weights with the presets'.
 
 Synthetic: ``--scenes`` scenes of the training style on seeds no run trains on, and as many of the
-held-out style (see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair with ground-truth depth
+held-out style, each as whole small photos and as windows of 400-2400 px photos (``*_windows``)
+(see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair with ground-truth depth
 (tests/data/dtu_pair) and the Middlebury temple of the demo. Prints one table and writes the JSON.
 """
 
@@ -21,6 +22,9 @@ import json
 import tempfile
 import time
 from pathlib import Path
+
+WINDOWS = (400.0, 2400.0)
+"""Photo widths of the ``*_windows`` rows: views cut from photos this wide (real cameras' focal lengths)."""
 
 
 def main() -> None:
@@ -60,23 +64,29 @@ def main() -> None:
         for style in ("train", "heldout"):
             results[f"synthetic_{style}"] = synthetic_quality(out / f"synth_{style}", config, style=style,
                                                               scenes=args.scenes)
+            results[f"synthetic_{style}_windows"] = synthetic_quality(
+                out / f"synth_{style}_windows", config, style=style, scenes=args.scenes, sensor_width=WINDOWS)
         if not args.skip_real:
             results["dtu_pair"] = dtu_pair_quality(Path(__file__).resolve().parents[1] / "tests/data/dtu_pair",
                                                    out / "dtu_pair", config)
             results["temple"] = temple_quality(out / "temple", config=demo)
         results["wall_s"] = round(time.perf_counter() - t, 1)
-    for key in ("synthetic_train", "synthetic_heldout"):
+    for key in ("synthetic_train", "synthetic_heldout", "synthetic_train_windows", "synthetic_heldout_windows"):
         r = results[key]
-        print(f"{key:18s} within 1% of range {100 * r['within_1pct']:5.1f}%   within 10% of depth "
+        print(f"{key:25s} within 1% of range {100 * r['within_1pct']:5.1f}%   within 10% of depth "
               f"{100 * r['within_10pct_depth']:5.1f}%   accuracy "
               f"{_pct(r['accuracy_pct'])}   completeness {_pct(r['completeness_pct'])} of the scene depth")
+    print("confidence calibration (training style, windows): share of pixels / within 1% of the range per bin")
+    for row in results["synthetic_train_windows"]["confidence_calibration"]:
+        within = "  -  " if row["within_1pct"] is None else f"{100 * row['within_1pct']:5.1f}%"
+        print(f"  conf {row['conf'][0]:.1f}-{row['conf'][1]:.1f}: {100 * row['share']:5.1f}% of pixels, {within}")
     if "dtu_pair" in results:
         r = results["dtu_pair"]
-        print(f"{'dtu_pair':18s} within 4 mm {100 * r['within_4mm']:5.1f}%   within 8 mm {100 * r['within_8mm']:5.1f}%"
-              f"   within 10% of depth {100 * r['within_10pct']:5.1f}%")
+        print(f"{'dtu_pair':25s} within 4 mm {100 * r['within_4mm']:5.1f}%   within 8 mm {100 * r['within_8mm']:5.1f}%"
+              f"   within 10% of depth {100 * r['within_10pct']:5.1f}%   8-px grid ratio {r['grid_ratio']:.2f}")
         r = results["temple"]
-        print(f"{'temple':18s} {r['points']} points, {100 * r['inside_box']:.1f}% inside the box, "
-              f"{100 * r['on_silhouette']:.1f}% on the silhouettes")
+        print(f"{'temple':25s} {r['points']} points, {100 * r['inside_box']:.1f}% inside the box, "
+              f"{100 * r['on_silhouette']:.1f}% on the silhouettes, 8-px grid ratio {r['grid_ratio']:.2f}")
     if args.json:
         Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
 

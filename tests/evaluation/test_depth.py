@@ -80,3 +80,22 @@ def test_bad_inputs(tmp_path):
         evaluate_depth_dirs(tmp_path / "pred", tmp_path / "gt")
     with pytest.raises(InputError, match="does not exist"):
         evaluate_depth_dirs(tmp_path / "nope", tmp_path / "gt")
+
+
+def test_grid_artifact_ratio_sees_blocks_and_not_smooth_or_random_maps():
+    from mvsformerpp.evaluation.depth import grid_artifact_ratio
+
+    rng = np.random.default_rng(0)
+    y, x = np.mgrid[0:96, 0:128].astype(np.float64)
+    smooth = 5 + 0.01 * x + 0.02 * y + 0.3 * np.sin(x / 7) * np.cos(y / 11)
+    noisy = smooth * (1 + 0.01 * rng.standard_normal(smooth.shape))
+    blocks = np.kron(rng.uniform(4, 6, (12, 16)), np.ones((8, 8))) + 0.001 * rng.standard_normal((96, 128))
+    assert abs(grid_artifact_ratio(noisy) - 1) < 0.1
+    assert 0.5 < grid_artifact_ratio(smooth) < 2
+    assert grid_artifact_ratio(blocks) > 100
+    # the same blocks shifted off the network's grid are not counted as on it
+    assert grid_artifact_ratio(np.roll(blocks, 4, axis=(0, 1))) < 0.1
+    half = np.ones_like(blocks, bool)
+    half[:, 64:] = False
+    assert grid_artifact_ratio(blocks, valid=half) > 100
+    assert np.isnan(grid_artifact_ratio(np.zeros((16, 16))))

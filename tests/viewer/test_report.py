@@ -101,3 +101,30 @@ def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys, 
     cfg = dataclasses.replace(cfg, fusion="normal")
     summary = reconstruct(temple_dir(), out, cfg, quiet=True, model=fake_network())
     assert f"{summary['points']:,}" in (out / "report.html").read_text()
+
+
+def test_the_report_names_the_weights_that_ran(synth_run, tmp_path, fake_network):
+    from mvsformerpp.models.shipped import shipped_record
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, weights_name
+
+    record = shipped_record()
+    assert weights_name(ReconstructConfig(preset="lite")).startswith(f"the shipped default weights {record['file']}")
+    assert record["sha256"][:12] in weights_name(ReconstructConfig(preset="lite"))
+    assert weights_name(ReconstructConfig(preset="lite", checkpoint="w.safetensors")) == "w.safetensors"
+    assert weights_name(ReconstructConfig(preset="paper")).startswith("random initialisation")
+
+    out = tmp_path / "out"
+    shutil.copytree(synth_run, out)
+    config = json.loads((out / "config.json").read_text())
+    config["config"].update(preset="lite", checkpoint=None)
+    config["resolved"]["weights"] = weights_name(ReconstructConfig(preset="lite"))
+    (out / "config.json").write_text(json.dumps(config))
+    text = write_report(out).read_text()
+    assert f"shipped default weights {record['file']}" in text and "random weights" not in text
+    # a folder written before config.json named the weights: told from the preset and the checkpoint
+    del config["resolved"]["weights"]
+    (out / "config.json").write_text(json.dumps(config))
+    assert "lite (the shipped default weights)" in write_report(out).read_text()
+    config["config"].update(preset="paper")
+    (out / "config.json").write_text(json.dumps(config))
+    assert "paper (random initialisation)" in write_report(out).read_text()

@@ -37,10 +37,18 @@ DARK = 20
 """Temple photos: pixels whose brightest channel is at most this (of 255) are background."""
 
 
+CONF_BINS = tuple(round(0.1 * k, 1) for k in range(11))
+"""Edges of the confidence bins of :func:`synthetic_quality`'s calibration table."""
+
+
 def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str = "train", scenes: int = 4,
                       seed: int = HELDOUT_SEED, num_views: int = 5, height: int = 192, width: int = 256,
-                      quiet: bool = True) -> dict:
-    """Depth and cloud quality on ``scenes`` synthetic scenes of ``style`` (module docstring)."""
+                      quiet: bool = True, sensor_width: tuple[float, float] | None = None) -> dict:
+    """Depth and cloud quality on ``scenes`` synthetic scenes of ``style`` (module docstring); with
+    ``sensor_width`` the views are windows of photos that wide (real cameras' focal lengths).
+
+    Also the confidence calibration: for each bin of :data:`CONF_BINS`, its share of the valid pixels and
+    the share of those within 1 % of the depth range (a confidence that means something rises with it)."""
     from mvsformerpp.evaluation.cloud import cloud_distances
     from mvsformerpp.io.mvsnet import read_cam
     from mvsformerpp.io.pfm import read_pfm
@@ -50,9 +58,11 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
     out = Path(out_dir)
     within = within10 = total = 0
     acc, comp, per_scene = [], [], []
+    bins = len(CONF_BINS) - 1
+    bin_pixels, bin_within = np.zeros(bins, np.int64), np.zeros(bins, np.int64)
     for k in range(scenes):
         scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
-                                   width=width, style=style)
+                                   width=width, style=style, sensor_width=sensor_width)
         rec = out / f"recon_{k}"
         cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views))
         reconstruct(scene_dir, rec, cfg, quiet=quiet)
@@ -65,6 +75,10 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
             valid = gt > 0
             tol = 0.01 * (cam.depth_max - cam.depth_min)
             err = np.abs(est[valid] - gt[valid])
+            conf = read_pfm(rec / "confidence" / f"{i:08d}.pfm")[valid]
+            which = np.clip(np.digitize(conf, CONF_BINS[1:-1]), 0, bins - 1)
+            bin_pixels += np.bincount(which, minlength=bins)
+            bin_within += np.bincount(which, weights=err < tol, minlength=bins).astype(np.int64)
             s_within += int((err < tol).sum())
             s_within10 += int((err < 0.1 * gt[valid]).sum())
             s_total += int(valid.sum())
@@ -84,8 +98,13 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
         within += s_within
         within10 += s_within10
         total += s_total
+    calibration = [{"conf": [CONF_BINS[b], CONF_BINS[b + 1]], "share": float(bin_pixels[b] / total),
+                    "within_1pct": float(bin_within[b] / bin_pixels[b]) if bin_pixels[b] else None}
+                   for b in range(bins)]
     return {"style": style, "scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
+            "sensor_width": None if sensor_width is None else list(sensor_width),
             "within_1pct": within / total, "within_10pct_depth": within10 / total,
+            "confidence_calibration": calibration,
             "accuracy_pct": float(np.mean(acc)) if acc else None,
             "completeness_pct": float(np.mean(comp)) if comp else None,
             "per_scene": per_scene}
@@ -162,6 +181,7 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
 
     The prediction at 640x512 is reduced to the ground truth's grid by the median of each 4x4 block.
     """
+    from mvsformerpp.evaluation.depth import grid_artifact_ratio
     from mvsformerpp.io.pfm import read_pfm
 
     pair_dir, out = Path(pair_dir), Path(out_dir)
@@ -179,13 +199,16 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
         gt = read_pfm(pair_dir / f"depth_map_{i:04d}.pfm")
         est = read_pfm(out / "recon" / "depth_est" / f"{i:08d}.pfm")
         h, w = gt.shape
+        near_gt = np.kron(gt > 0, np.ones((4, 4), bool))[: est.shape[0], : est.shape[1]]
+        grid = grid_artifact_ratio(est, 8, near_gt)
         est = np.median(est[: 4 * h, : 4 * w].reshape(h, 4, w, 4).transpose(0, 2, 1, 3).reshape(h, w, 16), -1)
         valid = gt > 0
         err = np.abs(est[valid] - gt[valid])
         rows[f"view{i}"] = {"within_4mm": float((err < 4).mean()), "within_8mm": float((err < 8).mean()),
                             "within_10pct": float((err < 0.1 * gt[valid]).mean()),
-                            "mae_mm": float(err.mean()), "valid_pixels": int(valid.sum())}
-    return {**{k: float(np.mean([r[k] for r in rows.values()])) for k in ("within_4mm", "within_8mm", "within_10pct")},
+                            "mae_mm": float(err.mean()), "valid_pixels": int(valid.sum()), "grid_ratio": grid}
+    keys = ("within_4mm", "within_8mm", "within_10pct", "grid_ratio")
+    return {**{k: float(np.mean([r[k] for r in rows.values()])) for k in keys},
             **rows}
 
 
@@ -195,7 +218,26 @@ def temple_quality(out_dir: str | Path, config: ReconstructConfig | None = None,
 
     summary = run_demo(out_dir, config or DEMO_CONFIG, quiet=quiet)
     return {**temple_cloud_metrics(Path(out_dir) / "fused.ply"), "views": summary["views"],
-            "depth_s": summary["timings"]["depth_s"]}
+            "depth_s": summary["timings"]["depth_s"], "grid_ratio": temple_grid_ratio(out_dir)}
+
+
+def temple_grid_ratio(out_dir: str | Path) -> float:
+    """Median over the views of :func:`~mvsformerpp.evaluation.depth.grid_artifact_ratio` of the temple's
+    depth maps, on the object (photo pixels brighter than :data:`DARK`)."""
+    from mvsformerpp.evaluation.depth import grid_artifact_ratio
+    from mvsformerpp.io.images import read_image
+    from mvsformerpp.io.pfm import read_pfm
+
+    out = Path(out_dir)
+    ratios = []
+    for path in sorted((out / "depth_est").glob("*.pfm")):
+        images = sorted((out / "images").glob(path.stem + ".*"))
+        depth = read_pfm(path)
+        mask = read_image(images[0]).max(2) > DARK if images else None
+        if mask is not None and mask.shape != depth.shape:
+            mask = None
+        ratios.append(grid_artifact_ratio(depth, 8, mask))
+    return float(np.nanmedian(ratios)) if ratios else float("nan")
 
 
 def temple_cloud_metrics(ply: str | Path) -> dict:

@@ -363,6 +363,18 @@ def describe_weights(config: ReconstructConfig) -> str:
             "official model_best.pth), or use --preset lite for the shipped default weights")
 
 
+def weights_name(config: ReconstructConfig) -> str:
+    """The weights ``build_network(config)`` runs, in a few words (config.json, the report)."""
+    from mvsformerpp.models import shipped
+
+    if config.checkpoint is not None:
+        return str(config.checkpoint)
+    if config.preset == shipped.SHIPPED_PRESET:
+        r = shipped.shipped_record()
+        return f"the shipped default weights {r['file']} (sha256 {r['sha256'][:12]})"
+    return f"random initialisation (seed {config.seed}): no checkpoint given"
+
+
 def fusion_conf_for(config: ReconstructConfig) -> float | None:
     """The confidence threshold fusion runs with: ``fusion_conf`` when given; with the shipped weights, the
     threshold calibrated for them and the preset's fusion method; otherwise None (the preset's own)."""
@@ -469,6 +481,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
     long_side = ranks.broadcast(choose_long_side(sizes, config.num_views, config.max_size, budget))
     plans = plan_views(sizes, long_side)
     resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
+    named = weights_name(config) if model is None else "a network passed to reconstruct()"
     fusion_conf = config.fusion_conf if model is not None else fusion_conf_for(config)
     weights = None
     if model is None:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
@@ -490,7 +503,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
                     folder.link_image(i, v.image_path)
         folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
         folder.write_json("config.json", {"config": dataclasses.asdict(config),
-                                          "resolved": {**resolved, "fusion_conf": fusion_conf},
+                                          "resolved": {**resolved, "fusion_conf": fusion_conf, "weights": named},
                                           "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
                                           "source_format": full.source_format, "num_views_in_input": len(full)})
         return [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]

@@ -107,25 +107,27 @@ def collate(items: list[dict]) -> dict:
 @torch.no_grad()
 def validate(model: MVSFormerPP, dataset: MVSDataset, config: TrainConfig, device: torch.device,
              loss_weights) -> dict:
-    """Loss and depth metrics (stage-4 depth vs ground truth; thresholds in depth intervals) on the
-    first ``val_samples`` samples, one at a time, in eval mode."""
+    """Loss (in total and per stage: ``val_stage1`` ..) and depth metrics (stage-4 depth vs ground truth;
+    thresholds in depth intervals) on the first ``val_samples`` samples, one at a time, in eval mode."""
     was_training = model.training
     model.prepare_for_inference()  # eval mode and the inference forms; train() drops them again
     h, w = config.val_height or config.height, config.val_width or config.width
     n = len(dataset) if config.val_samples <= 0 else min(config.val_samples, len(dataset))
-    sums, losses = DepthSums(), []
+    sums, losses, stages = DepthSums(), [], []
     for i in range(n):
         batch = _to(collate([dataset[SampleKey(i, h, w, 0)]]), device)
         with _autocast(device, config.precision):
             out = model(batch["imgs"], batch["proj_matrices"], batch["depth_values"])
-        loss, _ = cascade_loss(out, batch["depth_gt"], batch["mask"], loss_weights)
+        loss, per_stage = cascade_loss(out, batch["depth_gt"], batch["mask"], loss_weights)
         losses.append(float(loss))
+        stages.append([float(per_stage[f"stage{s}"]) if f"stage{s}" in per_stage else math.nan for s in range(1, 5)])
         dv = batch["depth_values"][0]
         interval = float(dv[-1] - dv[0]) / max(len(dv) - 1, 1)
         sums.add(depth_sums(out["depth"][0].float().cpu().numpy(), batch["depth_gt"]["stage4"][0].cpu().numpy(),
                             batch["mask"]["stage4"][0].cpu().numpy() > 0.5, thresholds=(1.0, 3.0), interval=interval))
     model.train(was_training)
-    return {"val_loss": float(np.mean(losses)) if losses else float("nan"), **sums.metrics()}
+    per_stage = {f"val_stage{s + 1}": float(v) for s, v in enumerate(np.mean(stages, 0))} if stages else {}
+    return {"val_loss": float(np.mean(losses)) if losses else float("nan"), **per_stage, **sums.metrics()}
 
 
 class _Bar:
