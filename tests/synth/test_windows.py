@@ -67,3 +67,21 @@ def test_bad_sensor_widths_are_refused():
         training_scene(1, 2, 24, 32, sensor_width=(0, 100))
     with pytest.raises(ValueError, match="sensor_width"):
         random_scene(1, 2, 24, 32, style="classic", sensor_width=(100, 200))
+
+
+def test_written_window_scenes_load_as_photos_with_the_photo_range(tmp_path):
+    from mvsformerpp.io.detect import load_scene
+    from mvsformerpp.io.mvsnet import read_cam
+    from mvsformerpp.io.pfm import read_pfm
+    from mvsformerpp.synth import generate_scene
+
+    out = generate_scene(tmp_path / "s", seed=4, num_views=3, height=48, width=64, style="train",
+                         sensor_width=(900, 900), gt_points=2000)
+    scene = load_scene(out)  # principal points in the middle: the loader's photo-and-camera check passes
+    assert len(scene.views) == 3
+    for i in range(3):
+        cam = read_cam(out / "cams" / f"{i:08d}_cam.txt")
+        assert abs(cam.K[0, 2] - 32) < 1e-6 and cam.K[0, 0] > 0.6 * 900
+        depth = read_pfm(out / "depth_gt" / f"{i:08d}.pfm")
+        assert cam.depth_min <= 0.95 * depth[depth > 0].min() + 1e-6
+        assert cam.depth_max >= 1.05 * depth.max() - 1e-6

@@ -8,6 +8,7 @@ behind them, cameras on an arc at about 4 units looking at the scene. Pixel (x, 
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -248,24 +249,61 @@ def _camera_effects(image: np.ndarray, cam: Camera) -> np.ndarray:
     return np.clip(image, 0, 1)
 
 
-def sensor_depth_range(scene: SynthScene, cam: Camera, grid: tuple[int, int] = (24, 32),
-                       percentiles: tuple[float, float] = (1.0, 99.0)) -> tuple[float, float] | None:
-    """Robust (near, far) z-depth of what the camera's whole photo sees (:attr:`Camera.sensor`), from a
-    sparse grid of rays: the range a cam file or sparse SfM points give for a real photo, of which a
-    training view is only a window. None when the camera has no sensor or the grid hits nothing."""
-    if cam.sensor is None:
-        return None
+def _sensor_rays(scene: SynthScene, cam: Camera, grid: tuple[int, int]):
+    """(ray lengths to the first hit (z-depths, inf = miss), directions) of a sparse grid over the photo."""
     K, width, height = cam.sensor
     ys, xs = np.meshgrid((np.arange(grid[0]) + 0.5) * height / grid[0], (np.arange(grid[1]) + 0.5) * width / grid[1],
                          indexing="ij")
     pix = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)], axis=1)
     dirs = pix @ np.linalg.inv(K).T @ cam.R
     t, _, _ = cast(scene, cam.center, dirs)
-    t = t[np.isfinite(t)]
-    if len(t) == 0:
+    return t, dirs
+
+
+def sensor_points(scene: SynthScene, cam: Camera, grid: tuple[int, int] = (24, 32)) -> np.ndarray:
+    """World points [N, 3] that a sparse grid of rays over the camera's whole photo (:attr:`Camera.sensor`)
+    hits: what sparse SfM points of a real photo would sample. Empty without a sensor."""
+    if cam.sensor is None:
+        return np.zeros((0, 3))
+    t, dirs = _sensor_rays(scene, cam, grid)
+    hit = np.isfinite(t)
+    return cam.center + t[hit, None] * dirs[hit]
+
+
+def sensor_depth_range(scene: SynthScene, cam: Camera, grid: tuple[int, int] = (24, 32),
+                       percentiles: tuple[float, float] = (1.0, 99.0),
+                       points: np.ndarray | None = None) -> tuple[float, float] | None:
+    """Robust (near, far) z-depth of what the camera's whole photo sees, from a sparse grid of rays: the
+    range a cam file or sparse SfM points give for a real photo, of which a training view is only a
+    window. With ``points`` (:func:`sensor_points` of the photo), their z-depth in ``cam``, which may be
+    turned away from the photo (:func:`centred_window`). None when the camera has no sensor (and no
+    points are given) or nothing is hit in front of it."""
+    if points is not None:
+        z = (points @ cam.R.T + cam.t)[:, 2]
+    elif cam.sensor is not None:
+        z, _ = _sensor_rays(scene, cam, grid)
+    else:
         return None
-    lo, hi = np.percentile(t, percentiles)
+    z = z[np.isfinite(z) & (z > 0)]
+    if len(z) == 0:
+        return None
+    lo, hi = np.percentile(z, percentiles)
     return float(lo), float(hi)
+
+
+def centred_window(cam: Camera, width: int, height: int) -> Camera:
+    """A window of a photo turned into a photo of its own: the camera rotated about its centre to look
+    through the window's middle, the principal point in the middle, the same focal length. It sees
+    nearly what the window sees, and its files pass the checks real photos get (a principal point near
+    the image centre)."""
+    axis = cam.R.T @ (np.linalg.inv(cam.K) @ np.array([width / 2, height / 2, 1.0]))
+    z = axis / np.linalg.norm(axis)
+    x = cam.R[0] - (cam.R[0] @ z) * z
+    x /= np.linalg.norm(x)
+    R = np.stack([x, np.cross(z, x), z])
+    K = cam.K.copy()
+    K[0, 1], K[0, 2], K[1, 2] = 0.0, width / 2, height / 2
+    return dataclasses.replace(cam, K=K, R=R, t=-R @ cam.center, sensor=None)
 
 
 def render_view(scene: SynthScene, cam: Camera):

@@ -12,7 +12,7 @@ from mvsformerpp.errors import InputError
 from mvsformerpp.io.mvsnet import MVSNetCam, write_cam, write_pair
 from mvsformerpp.io.pfm import write_pfm
 from mvsformerpp.io.ply import write_ply
-from mvsformerpp.synth.render import random_scene, render_view, sensor_depth_range
+from mvsformerpp.synth.render import centred_window, random_scene, render_view, sensor_depth_range, sensor_points
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 
 
@@ -39,11 +39,16 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
     ``images/NNNNNNNN.png``, ``cams/NNNNNNNN_cam.txt`` (4-number depth line from the GT depth range),
     ``pair.txt``, ``depth_gt/NNNNNNNN.pfm`` (exact z-depth), ``masks/NNNNNNNN.png`` (255 = valid
     depth), ``gt_surface.ply`` (coloured points on the visible surfaces) and ``scene.json``.
-    ``sensor_width``: the views are windows of larger photos (see :func:`random_scene`); their cam files
-    then hold the whole photo's depth range joined with the window's, as a real crop's would.
+    ``sensor_width``: the views are windows of larger photos (see :func:`random_scene`), each written as a
+    photo of its own (:func:`~mvsformerpp.synth.render.centred_window`: the long focal length, the
+    principal point in the middle); their cam files hold the whole photo's depth range joined with the
+    view's, as a real crop's would.
     """
     out = Path(out_dir)
     scene = random_scene(seed, num_views, height, width, num_objects, style=style, sensor_width=sensor_width)
+    photo_points = [sensor_points(scene, cam) for cam in scene.cameras]
+    if sensor_width is not None:  # windows as photos of their own (principal points in the middle)
+        scene.cameras = [centred_window(cam, width, height) for cam in scene.cameras]
     all_pts, all_rgb = [], []
     for i, cam in enumerate(scene.cameras):
         image, depth, pts = render_view(scene, cam)
@@ -55,7 +60,7 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
         _save_png(out / "masks" / f"{stem}.png", (valid * 255).astype(np.uint8))
         write_pfm(out / "depth_gt" / f"{stem}.pfm", depth)
         near, far = float(depth[valid].min()), float(depth[valid].max())
-        photo = sensor_depth_range(scene, cam)
+        photo = sensor_depth_range(scene, cam, points=photo_points[i]) if len(photo_points[i]) else None
         if photo is not None:
             near, far = min(near, photo[0]), max(far, photo[1])
         dmin, dmax = near * 0.95, far * 1.05
