@@ -87,3 +87,13 @@ def test_folders_without_depth_maps_or_cloud(tmp_path, exact_run, capsys):
     assert main(["mesh", str(tmp_path), "-o", str(tmp_path / "m.ply"), "--method", "poisson"]) == 2
     assert "mvsformerpp fuse OUT" in capsys.readouterr().err
     assert not (tmp_path / "m.ply").exists()
+
+
+def test_a_grid_larger_than_free_memory_is_refused_before_meshing(synth_run, tmp_path, capsys, monkeypatch):
+    import mvsformerpp.inference.resolution as resolution
+
+    monkeypatch.setattr(resolution, "available_memory_bytes", lambda device: 2.0 * 2**30)
+    assert main(["mesh", str(synth_run), "-o", str(tmp_path / "m.ply"), "--resolution", "1024", "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert "needs up to 16.0 GB" in err and "2.0 GB free" in err and "at most --resolution 512" in err
+    assert not (tmp_path / "m.ply").exists()

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+BYTES_PER_VOXEL = 16  # TSDF value, weight and colour of a voxel, with the working copies (measured: ~15)
+MAX_POISSON_DEPTH = 13
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -34,15 +37,38 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    import math
+
     from mvsformerpp.errors import InputError
     from mvsformerpp.meshing.poisson import PoissonConfig
     from mvsformerpp.meshing.tsdf import TSDFConfig
     from mvsformerpp.pipelines.mesh import MeshConfig, make_mesh
 
-    if args.voxel is not None and args.voxel <= 0:
-        raise InputError(f"--voxel must be positive, got {args.voxel}")
+    if args.voxel is not None and not (math.isfinite(args.voxel) and args.voxel > 0):
+        raise InputError(f"--voxel must be a positive length in scene units, got {args.voxel}")
     if args.resolution < 8:
-        raise InputError(f"--resolution must be at least 8, got {args.resolution}")
+        raise InputError(f"--resolution must be at least 8 voxels, got {args.resolution}")
+    if args.method == "tsdf" and args.voxel is None:
+        import torch
+
+        from mvsformerpp.inference.resolution import available_memory_bytes
+
+        need, have = BYTES_PER_VOXEL * args.resolution**3, available_memory_bytes(torch.device("cpu"))
+        if need > have:
+            raise InputError(f"--resolution {args.resolution} needs up to {need / 2**30:.1f} GB for the TSDF grid "
+                             f"({BYTES_PER_VOXEL} bytes per voxel), more than the {have / 2**30:.1f} GB free; "
+                             f"choose at most --resolution {int(round((have / BYTES_PER_VOXEL) ** (1 / 3), 6))}")
+    if not (math.isfinite(args.truncation) and args.truncation > 0):
+        raise InputError(f"--truncation must be a positive number of voxels, got {args.truncation}")
+    if not 0 <= args.min_conf < 1:
+        raise InputError(f"--min-conf must be a confidence in [0, 1), got {args.min_conf}")
+    if not 1 <= args.depth <= MAX_POISSON_DEPTH:
+        raise InputError(f"--depth must be 1 .. {MAX_POISSON_DEPTH} (each level multiplies the memory by about 4; "
+                         f"depth 10 meshes a scene at 1/1000 of its size), got {args.depth}")
+    if not 0 <= args.trim < 100:
+        raise InputError(f"--trim must be a percentage in [0, 100), got {args.trim}")
+    if args.threads < 1:
+        raise InputError(f"--threads must be at least 1, got {args.threads}")
     config = MeshConfig(
         method=args.method, device=args.device,
         tsdf=TSDFConfig(voxel=args.voxel, resolution=args.resolution, truncation=args.truncation,

@@ -38,6 +38,8 @@ def run(args: argparse.Namespace) -> int:
     from mvsformerpp.synth import generate_dataset, generate_scene
     from mvsformerpp.utils.output_guard import claim_output_folder
 
+    if args.seed < 0:
+        raise InputError(f"--seed must be >= 0, got {args.seed}")
     if args.views < 2 or args.height < 32 or args.width < 32 or args.scenes < 1:
         raise InputError(f"need --views >= 2, --height/--width >= 32 and --scenes >= 1, got --views {args.views} "
                          f"--height {args.height} --width {args.width} --scenes {args.scenes}")

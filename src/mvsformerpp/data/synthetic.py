@@ -14,6 +14,7 @@ keyword options in ``synthetic_options`` (for example a generator's style switch
 from __future__ import annotations
 
 import importlib
+import inspect
 from collections.abc import Callable
 
 import numpy as np
@@ -22,6 +23,8 @@ from mvsformerpp.data.base import MVSDataset, ViewData, ViewSet
 from mvsformerpp.errors import InputError
 
 DEFAULT_SOURCE = "mvsformerpp.synth:random_scene"
+SOURCE_ARGS = ("seed", "num_views", "height", "width")
+"""The keywords every scene source is called with."""
 
 
 def resolve_source(spec: str | Callable) -> Callable:
@@ -36,6 +39,16 @@ def resolve_source(spec: str | Callable) -> Callable:
             from e
     if not callable(fn):
         raise InputError(f"synthetic scene source {spec!r} is not callable")
+    try:
+        params = inspect.signature(fn).parameters
+    except (TypeError, ValueError):
+        params = {}
+    takes_any = any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values())
+    missing = [k for k in SOURCE_ARGS if k not in params]
+    if missing and not takes_any:
+        raise InputError(f"synthetic scene source {spec!r} is not a scene generator: it must accept "
+                         f"{', '.join(SOURCE_ARGS)} as keywords (it lacks {', '.join(missing)}) and return a "
+                         "SynthScene")
     return fn
 
 

@@ -16,6 +16,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import math
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -94,24 +95,28 @@ class ReconstructConfig:
         if self.num_views < 2:
             raise InputError(f"--views must be at least 2 (the reference and one source view), got {self.num_views}")
         if self.num_depth < 2:
-            raise InputError(f"num_depth must be at least 2, got {self.num_depth}")
+            raise InputError(f"--num-depth must be at least 2, got {self.num_depth}")
         if self.max_size is not None and self.max_size < 64:
             raise InputError(f"--max-size must be at least 64 pixels, got {self.max_size}")
-        if self.memory_gb is not None and self.memory_gb <= 0:
-            raise InputError(f"--memory-gb must be positive, got {self.memory_gb}")
+        if self.memory_gb is not None and not (math.isfinite(self.memory_gb) and self.memory_gb > 0):
+            raise InputError(f"--memory-gb must be a positive number of GB, got {self.memory_gb}")
         if self.cache_mb < 0:
             raise InputError(f"--cache-mb must be >= 0, got {self.cache_mb}")
-        if self.depth_range is not None and not 0 < self.depth_range[0] < self.depth_range[1]:
+        if self.depth_range is not None and not (0 < self.depth_range[0] < self.depth_range[1]
+                                                 and math.isfinite(self.depth_range[1])):
             raise InputError(f"--depth-range {self.depth_range[0]:g} {self.depth_range[1]:g} must satisfy "
                              "0 < min < max")
         if self.depth_format not in ("auto", "interval", "max"):
             raise InputError(f"--depth-format must be auto, interval or max, got {self.depth_format!r}")
-        if not self.interval_scale > 0:
-            raise InputError(f"--interval-scale must be positive, got {self.interval_scale}")
+        if not (math.isfinite(self.interval_scale) and self.interval_scale > 0):
+            raise InputError(f"--interval-scale must be a positive number, got {self.interval_scale}")
         if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
             raise InputError(f"--conf must be a confidence in [0, 1), got {self.fusion_conf}")
         if len(self.temperatures) != 4:
-            raise InputError(f"temperatures need one value per stage (4), got {self.temperatures}")
+            raise InputError(f"--temperatures needs one value per stage (4), got {self.temperatures}")
+        if not all(math.isfinite(t) and t > 0 for t in self.temperatures):
+            raise InputError("--temperatures must be four positive numbers (the official runs use 5 5 5 1), got "
+                             + " ".join(f"{t:g}" for t in self.temperatures))
 
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""

@@ -9,6 +9,7 @@ config is saved as ``RUN_DIR/config.yaml``.
 from __future__ import annotations
 
 import dataclasses
+import math
 import typing
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -317,6 +318,36 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError("batch_size must be >= 1 and max_steps/epochs >= 0")
     if config.save_every < 1 or config.log_every < 1:
         raise InputError("save_every and log_every must be >= 1")
+    def number(name: str, low: float, high: float = math.inf, low_open: bool = False) -> None:
+        value = getattr(config, name)
+        if value is None:
+            return
+        ok = math.isfinite(value) and (value > low if low_open else value >= low) and value <= high
+        if not ok:
+            bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if math.isfinite(high) else "")
+            raise InputError(f"{name} must be a finite number {bound}, got {value!r} (--set {name}=...)")
+
+    number("lr", 0.0, low_open=True)
+    number("min_lr_ratio", 0.0, 1.0)
+    number("weight_decay", 0.0)
+    number("grad_clip", 0.0, low_open=True)
+    number("interval_scale", 0.0, low_open=True)
+    number("resize_min_scale", 0.0, 1.0, low_open=True)
+    number("synthetic_render_scale", 1.0, 4.0)
+    for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "seed"):
+        if getattr(config, name) < 0:
+            raise InputError(f"{name} must be >= 0, got {getattr(config, name)} (--set {name}=...)")
+    if not all(0 <= b < 1 for b in config.betas):
+        raise InputError(f"betas must be two numbers in [0, 1), got {list(config.betas)}")
+    lo, hi = config.resize_range
+    if not (math.isfinite(hi) and 0 < lo <= hi):
+        raise InputError(f"resize_range must be two numbers 0 < low <= high, got {list(config.resize_range)}")
+    if config.loss_weights is not None and not all(math.isfinite(w) and w >= 0 for w in config.loss_weights):
+        raise InputError(f"loss_weights must be four numbers >= 0, got {list(config.loss_weights)}")
+    if config.recipe == "synthetic":
+        from mvsformerpp.data.synthetic import resolve_source
+
+        resolve_source(config.synthetic_source)
     if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
         raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
     if config.parallax_samples < 1:
