@@ -1,6 +1,7 @@
 """Network pieces checked against independent evidence (formulas, invariants, brute force)."""
 
 import math
+import re
 
 import pytest
 import torch
@@ -185,8 +186,13 @@ def test_training_step_gives_every_trainable_parameter_a_gradient():
     masks = {k: torch.ones_like(v) for k, v in gt.items()}
     total, _ = cascade_loss(out, gt, masks)
     total.backward()
+    # the bias of a stage's last 3-D conv adds one constant to every hypothesis' logit, which the softmax
+    # cancels: its gradient is zero up to rounding (exactly zero with some thread counts), so it only
+    # has to be reached
+    invariant = re.compile(r"fusions\.\d\.cost_reg\.prob\.bias$")
     missing = [
-        n for n, p in model.named_parameters() if p.requires_grad and (p.grad is None or p.grad.abs().sum() == 0)
+        n for n, p in model.named_parameters()
+        if p.requires_grad and (p.grad is None or (p.grad.abs().sum() == 0 and not invariant.search(n)))
     ]
     assert not missing, missing
 

@@ -168,8 +168,9 @@ def check_parallax(config, samples: int | None = None) -> np.ndarray | None:
 
 def format_table(rows: dict[str, tuple[np.ndarray, np.ndarray | float]]) -> str:
     """Rows of (shifts [N, 4] or [4], focal(s)) as a text table: percentiles for sampled rows."""
-    lines = [f"{'':34s} {'stage 1':>16s} {'stage 2':>16s} {'stage 3':>16s} {'stage 4':>16s} {'focal (px)':>16s}",
-             f"{'(px per plane, own resolution)':34s}" + "".join(f"{'p10/p50/p90':>17s}" for _ in range(5))]
+    n = max([34, *(len(name) for name in rows)])
+    lines = [f"{'':{n}s} {'stage 1':>16s} {'stage 2':>16s} {'stage 3':>16s} {'stage 4':>16s} {'focal (px)':>16s}",
+             f"{'(px per plane, own resolution)':{n}s}" + "".join(f"{'p10/p50/p90':>17s}" for _ in range(5))]
     for name, (shifts, focal) in rows.items():
         shifts = np.atleast_2d(shifts)
         focal = np.atleast_1d(focal)
@@ -179,7 +180,7 @@ def format_table(rows: dict[str, tuple[np.ndarray, np.ndarray | float]]) -> str:
             cells = ["{:>16s}".format("/".join(f"{v:.2f}" for v in np.nanpercentile(shifts[:, k], PERCENTILES)))
                      for k in range(shifts.shape[1])]
             cells.append("{:>16s}".format("/".join(f"{v:.0f}" for v in np.percentile(focal, PERCENTILES))))
-        lines.append(f"{name:34s} " + " ".join(cells))
+        lines.append(f"{name:{n}s} " + " ".join(cells))
     return "\n".join(lines)
 
 
