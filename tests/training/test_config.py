@@ -87,3 +87,24 @@ def test_micro_batch_by_height():
 def test_unusable_values_are_rejected(over, match):
     with pytest.raises(InputError, match=match):
         load_config("synthetic", over)
+
+
+def test_train_refuses_a_users_folder_its_own_recipe_and_a_busy_run(tmp_path, capsys):
+    from mvsformerpp.cli import main
+    from mvsformerpp.utils.output_guard import folder_lock
+
+    exp = tmp_path / "exp"
+    exp.mkdir()
+    recipe = exp / "config.yaml"
+    recipe.write_text("# my recipe\nrecipe: synthetic\nheight: 64\nwidth: 96\n")
+    (exp / "notes.txt").write_text("mine\n")
+    assert main(["train", str(recipe), "-o", str(exp), "--max-steps", "1"]) == 2
+    assert "holds the input" in capsys.readouterr().err
+    assert recipe.read_text().startswith("# my recipe") and (exp / "notes.txt").read_text() == "mine\n"
+    assert main(["train", "synthetic", "-o", str(exp), "--max-steps", "1"]) == 2
+    assert "not empty" in capsys.readouterr().err
+    busy = tmp_path / "busy"
+    busy.mkdir()
+    with folder_lock(busy):
+        assert main(["train", "synthetic", "-o", str(busy), "--max-steps", "1"]) == 2
+    assert "another mvsformerpp run" in capsys.readouterr().err

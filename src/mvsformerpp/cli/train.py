@@ -49,7 +49,10 @@ def run(args: argparse.Namespace) -> int:
     overrides = {field: getattr(args, dest) for dest, field in _FIELDS.items() if getattr(args, dest) is not None}
     overrides.update(parse_overrides(args.set))
     config = load_config(args.config, overrides)
-    summary = run_training(config, args.output, resume=args.resume)
+    from pathlib import Path
+
+    recipe_file = [args.config] if Path(args.config).is_file() else []
+    summary = run_training(config, args.output, resume=args.resume, inputs=recipe_file)
     val = summary.get("last_validation") or {}
     shown = ", ".join(f"{k} {v:.4g}" for k, v in val.items() if k in ("val_loss", "mae", "abs_rel"))
     print(f"trained {summary['steps']} steps ({summary['bad_steps']} skipped); {shown}; "

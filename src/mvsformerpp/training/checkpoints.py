@@ -2,15 +2,17 @@
 
 ``checkpoints/NAME.safetensors`` holds the network (loadable by ``reconstruct --checkpoint``) and
 ``checkpoints/NAME.state.pt`` the optimiser, scheduler, gradient scaler, sampler position, random
-generator states and counters. Both are written to temporary files and renamed (state first, then
-weights), and both carry the step, so a resume can tell a matching pair. A full disk leaves the
-previous pair untouched and stops the run with a clear message.
+generator states and counters. Both carry the step; the previous pair is kept as ``NAME.prev.*`` while
+the new one is written (each file to a temporary name, then renamed), so a kill at any instant leaves
+a matching pair that a resume takes. A full disk leaves the previous pair and stops the run with a
+clear message.
 """
 
 from __future__ import annotations
 
 import errno
 import io
+import os
 import random
 from contextlib import contextmanager
 from pathlib import Path
@@ -52,39 +54,69 @@ def set_rng_state(state: dict) -> None:
 
 
 def save_training_checkpoint(folder: Path, name: str, model: torch.nn.Module, state: dict | None) -> Path:
-    """Write ``NAME.state.pt`` (if ``state``) then ``NAME.safetensors``; returns the weights path."""
+    """Write ``NAME.state.pt`` (if ``state``) and ``NAME.safetensors``; returns the weights path.
+
+    With a state, the previous pair is first renamed to ``NAME.prev.*`` (state, then weights), then the
+    new state and weights are written: at every instant, a kill leaves at least one weights file and one
+    state file of the same step among the four, which :func:`load_training_checkpoint` finds.
+    """
     folder = Path(folder)
     weights = folder / f"{name}.safetensors"
     step = None if state is None else int(state["step"])
     if state is not None:
         buf = io.BytesIO()
         torch.save(state, buf)
-        with _write_guard(folder / f"{name}.state.pt"):
-            atomic_write_bytes(folder / f"{name}.state.pt", buf.getvalue())
+        state_path = folder / f"{name}.state.pt"
+        with _write_guard(state_path):
+            for new, old in ((state_path, folder / f"{name}.prev.state.pt"),
+                             (weights, folder / f"{name}.prev.safetensors")):
+                if new.is_file():
+                    os.replace(new, old)
+            atomic_write_bytes(state_path, buf.getvalue())
     with _write_guard(weights):
         save_checkpoint(model, weights, extra_metadata=None if step is None else {"step": step})
     return weights
 
 
-def load_training_checkpoint(folder: Path, name: str, model: torch.nn.Module) -> dict:
-    """Load ``NAME.safetensors`` into ``model`` (strict) and return the state from ``NAME.state.pt``."""
+def _weights_step(path: Path) -> int | None:
     from safetensors import safe_open
 
+    try:
+        with safe_open(str(path), framework="pt") as f:
+            step = (f.metadata() or {}).get("step")
+        return None if step is None else int(step)
+    except Exception:  # a damaged or foreign file: not a candidate
+        return None
+
+
+def load_training_checkpoint(folder: Path, name: str, model: torch.nn.Module) -> dict:
+    """Load the newest matching pair of ``NAME[.prev].safetensors`` and ``NAME[.prev].state.pt`` (the same
+    step in both) into ``model`` (strict) and return its training state."""
     from mvsformerpp.models.checkpoint import load_state_dict_strict
 
-    weights, state_path = Path(folder) / f"{name}.safetensors", Path(folder) / f"{name}.state.pt"
-    for p in (weights, state_path):
-        if not p.is_file():
-            raise InputError("cannot resume: the checkpoint file is missing (run without --resume to start over)", p)
-    try:
-        state = torch.load(state_path, map_location="cpu", weights_only=True)
-    except Exception as e:
-        raise InputError(f"cannot resume: unreadable training state ({type(e).__name__}: {e})", state_path) from e
-    with safe_open(str(weights), framework="pt") as f:
-        step = (f.metadata() or {}).get("step")
-    if step is None or int(step) != int(state.get("step", -1)):
-        raise InputError(f"cannot resume: the weights (step {step}) and the training state (step "
-                         f"{state.get('step')}) do not belong together", weights)
+    folder = Path(folder)
+    weights_files = [p for p in (folder / f"{name}.safetensors", folder / f"{name}.prev.safetensors") if p.is_file()]
+    state_files = [p for p in (folder / f"{name}.state.pt", folder / f"{name}.prev.state.pt") if p.is_file()]
+    if not weights_files or not state_files:
+        missing = folder / (f"{name}.safetensors" if not weights_files else f"{name}.state.pt")
+        raise InputError("cannot resume: the checkpoint file is missing (run without --resume to start over)",
+                         missing)
+    states, errors = {}, []
+    for p in state_files:
+        try:
+            st = torch.load(p, map_location="cpu", weights_only=True)
+            states[int(st.get("step", -1))] = st
+        except Exception as e:
+            errors.append(f"{p.name}: {type(e).__name__}: {e}")
+    steps = {p: _weights_step(p) for p in weights_files}
+    pairs = sorted(((steps[p], p) for p in weights_files if steps[p] is not None and steps[p] in states),
+                   key=lambda x: -x[0])
+    if not pairs:
+        found = ", ".join(f"{p.name} step {s}" for p, s in steps.items())
+        why = f"; unreadable: {'; '.join(errors)}" if errors else ""
+        raise InputError(f"cannot resume: no weights and training state of the same step ({found}; states of steps "
+                         f"{sorted(states)}{why}); run without --resume in a new folder to start over", folder)
+    step, weights = pairs[0]
     sd, _ = read_safetensors(weights)
     load_state_dict_strict(model, sd, weights)
-    return state
+    return states[step]

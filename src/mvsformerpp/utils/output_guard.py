@@ -63,6 +63,8 @@ def _written_by(out: Path) -> str | None:
         pass
     if (out / "progress.json").is_file() and (out / "config.json").is_file():
         return "mvsformerpp reconstruct"
+    if (out / "config.yaml").is_file() and (out / "metrics.jsonl").is_file():  # a training run
+        return "mvsformerpp train"
     return None
 
 
