@@ -22,7 +22,7 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
     """Check the folder against ``resume`` and write ``config.yaml`` (main process only)."""
     cfg_path = run_dir / "config.yaml"
     ckpts = run_dir / "checkpoints"
-    has_checkpoint = any((ckpts / f"last{k}.safetensors").is_file() for k in ("", ".prev"))  # see checkpoints.py
+    has_checkpoint = any((ckpts / f"last{k}.safetensors").is_file() for k in ("", ".prev", ".next"))  # checkpoints.py
     if resume:
         if not has_checkpoint or not cfg_path.is_file():
             raise InputError("nothing to resume: no checkpoints/last.safetensors and config.yaml here "

@@ -2,10 +2,10 @@
 
 ``checkpoints/NAME.safetensors`` holds the network (loadable by ``reconstruct --checkpoint``) and
 ``checkpoints/NAME.state.pt`` the optimiser, scheduler, gradient scaler, sampler position, random
-generator states and counters. Both carry the step; the previous pair is kept as ``NAME.prev.*`` while
-the new one is written (each file to a temporary name, then renamed), so a kill at any instant leaves
-a matching pair that a resume takes. A full disk leaves the previous pair and stops the run with a
-clear message.
+generator states and counters. Both carry the step. A new pair is written in full beside the current one
+before renames put it in place (the current one is kept as ``NAME.prev.*``), so a kill at any instant
+leaves a matching pair that a resume takes, and a full disk leaves the current pair and stops the run
+with a clear message.
 """
 
 from __future__ import annotations
@@ -56,25 +56,30 @@ def set_rng_state(state: dict) -> None:
 def save_training_checkpoint(folder: Path, name: str, model: torch.nn.Module, state: dict | None) -> Path:
     """Write ``NAME.state.pt`` (if ``state``) and ``NAME.safetensors``; returns the weights path.
 
-    With a state, the previous pair is first renamed to ``NAME.prev.*`` (state, then weights), then the
-    new state and weights are written: at every instant, a kill leaves at least one weights file and one
-    state file of the same step among the four, which :func:`load_training_checkpoint` finds.
+    With a state, the new pair is first written completely as ``NAME.next.*``; then the current pair
+    becomes ``NAME.prev.*`` and the new one ``NAME.*``, by renames. At every instant a kill leaves a
+    weights file and a state file of one step among them, which :func:`load_training_checkpoint`
+    finds; a full disk stops before any rename, with the current pair untouched.
     """
     folder = Path(folder)
     weights = folder / f"{name}.safetensors"
-    step = None if state is None else int(state["step"])
-    if state is not None:
-        buf = io.BytesIO()
-        torch.save(state, buf)
-        state_path = folder / f"{name}.state.pt"
-        with _write_guard(state_path):
-            for new, old in ((state_path, folder / f"{name}.prev.state.pt"),
-                             (weights, folder / f"{name}.prev.safetensors")):
-                if new.is_file():
-                    os.replace(new, old)
-            atomic_write_bytes(state_path, buf.getvalue())
-    with _write_guard(weights):
-        save_checkpoint(model, weights, extra_metadata=None if step is None else {"step": step})
+    if state is None:
+        with _write_guard(weights):
+            save_checkpoint(model, weights)
+        return weights
+    buf = io.BytesIO()
+    torch.save(state, buf)
+    state_path = folder / f"{name}.state.pt"
+    new_state, new_weights = folder / f"{name}.next.state.pt", folder / f"{name}.next.safetensors"
+    with _write_guard(state_path):
+        atomic_write_bytes(new_state, buf.getvalue())
+        save_checkpoint(model, new_weights, extra_metadata={"step": int(state["step"])})
+        for current, kept in ((state_path, folder / f"{name}.prev.state.pt"),
+                              (weights, folder / f"{name}.prev.safetensors")):
+            if current.is_file():
+                os.replace(current, kept)
+        os.replace(new_state, state_path)
+        os.replace(new_weights, weights)
     return weights
 
 
@@ -90,13 +95,14 @@ def _weights_step(path: Path) -> int | None:
 
 
 def load_training_checkpoint(folder: Path, name: str, model: torch.nn.Module) -> dict:
-    """Load the newest matching pair of ``NAME[.prev].safetensors`` and ``NAME[.prev].state.pt`` (the same
-    step in both) into ``model`` (strict) and return its training state."""
+    """Load the newest matching pair of ``NAME[.prev|.next].safetensors`` and ``NAME[.prev|.next].state.pt``
+    (the same step in both) into ``model`` (strict) and return its training state."""
     from mvsformerpp.models.checkpoint import load_state_dict_strict
 
     folder = Path(folder)
-    weights_files = [p for p in (folder / f"{name}.safetensors", folder / f"{name}.prev.safetensors") if p.is_file()]
-    state_files = [p for p in (folder / f"{name}.state.pt", folder / f"{name}.prev.state.pt") if p.is_file()]
+    kinds = ("", ".prev", ".next")
+    weights_files = [p for k in kinds if (p := folder / f"{name}{k}.safetensors").is_file()]
+    state_files = [p for k in kinds if (p := folder / f"{name}{k}.state.pt").is_file()]
     if not weights_files or not state_files:
         missing = folder / (f"{name}.safetensors" if not weights_files else f"{name}.state.pt")
         raise InputError("cannot resume: the checkpoint file is missing (run without --resume to start over)",
