@@ -61,7 +61,7 @@ def view_shifts(K_ref, E_ref, K_src, E_src, depth: np.ndarray, depth_min: float,
         pick = np.linspace(0, len(ys) - 1, max_points).astype(np.int64)
         ys, xs = ys[pick], xs[pick]
     inv = 1.0 / depth[ys, xs].astype(np.float64)
-    rays = np.stack([xs + 0.5, ys + 0.5, np.ones_like(inv)]) .T @ np.linalg.inv(K_ref).T  # z = 1
+    rays = np.stack([xs + 0.5, ys + 0.5, np.ones_like(inv)]).T @ np.linalg.inv(K_ref).T  # z = 1
     R, t = np.asarray(E_ref)[:3, :3], np.asarray(E_ref)[:3, 3]
     Rs, ts = np.asarray(E_src)[:3, :3], np.asarray(E_src)[:3, 3]
     span = 1.0 / depth_min - 1.0 / depth_max
