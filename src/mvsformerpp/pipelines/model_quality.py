@@ -75,11 +75,12 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
             valid = gt > 0
             tol = 0.01 * (cam.depth_max - cam.depth_min)
             err = np.abs(est[valid] - gt[valid])
+            close = err < tol
             conf = read_pfm(rec / "confidence" / f"{i:08d}.pfm")[valid]
             which = np.clip(np.digitize(conf, CONF_BINS[1:-1]), 0, bins - 1)
             bin_pixels += np.bincount(which, minlength=bins)
-            bin_within += np.bincount(which, weights=err < tol, minlength=bins).astype(np.int64)
-            s_within += int((err < tol).sum())
+            bin_within += np.bincount(which, weights=close, minlength=bins).astype(np.int64)
+            s_within += int(close.sum())
             s_within10 += int((err < 0.1 * gt[valid]).sum())
             s_total += int(valid.sum())
             depths.append(gt[valid])
