@@ -30,6 +30,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--sensor-width", type=float, nargs=2, metavar=("LOW", "HIGH"),
                    help="train/heldout styles: each view is a window of a photo whose width in pixels is drawn from "
                    "LOW..HIGH (long focal lengths, as crops of high-resolution photos have)")
+    p.add_argument("--detail", type=float, default=0.0, metavar="S",
+                   help="train/heldout styles: strength in [0, 1] of fine surface detail below the scale of each "
+                   "surface's texture (default 0: none), so magnified textures keep structure at the pixel scale")
     p.set_defaults(func=run)
 
 
@@ -52,8 +55,11 @@ def run(args: argparse.Namespace) -> int:
         if args.style == "classic" or not 0 < lo <= hi <= MAX_SIZE * 8:
             raise InputError(f"--sensor-width needs --style train or heldout and 0 < LOW <= HIGH <= {MAX_SIZE * 8}, "
                              f"got {lo:g} {hi:g} with --style {args.style}")
+    if not 0.0 <= args.detail <= 1.0 or (args.detail and args.style == "classic"):
+        raise InputError(f"--detail needs --style train or heldout and a strength in [0, 1], got {args.detail:g} "
+                         f"with --style {args.style}")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
-              style=args.style, sensor_width=args.sensor_width)
+              style=args.style, sensor_width=args.sensor_width, detail=args.detail)
     with claim_output_folder(args.output, kind="synth", reuse=False):
         if args.scenes == 1:
             out = generate_scene(args.output, seed=args.seed, **kw)

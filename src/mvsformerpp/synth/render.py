@@ -79,6 +79,10 @@ class SynthScene:
     """Colour samples per pixel side (2 = 4 rays per pixel, anti-aliased); depth is always at the centre."""
     textures: tuple = ()
     """Mip pyramids that ``photo`` surfaces index (see :mod:`mvsformerpp.synth.photos`)."""
+    detail: float = 0.0
+    """Strength of the fine surface detail (0 = none; see :func:`detail_factor`): grain that goes on below
+    the scale of a surface's own texture, as real materials have, so a view that magnifies a texture (a
+    window of a high-resolution photo) still has matchable structure at the pixel scale."""
 
 
 def look_at(center: np.ndarray, target: np.ndarray, up=(0.0, 0.0, 1.0)) -> tuple[np.ndarray, np.ndarray]:
@@ -97,7 +101,7 @@ STYLES = ("classic", "train", "heldout")
 
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
                  num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic",
-                 sensor_width: tuple[float, float] | None = None) -> SynthScene:
+                 sensor_width: tuple[float, float] | None = None, detail: float = 0.0) -> SynthScene:
     """A random scene, deterministic for (seed, style, sizes).
 
     ``classic``: several objects of different shapes, sizes, depths and textures on a ground plane
@@ -108,6 +112,7 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
     spiral camera paths), for evaluation.
     ``sensor_width`` (``train`` and ``heldout``): the views are windows of larger photos whose width in
     pixels is drawn from this (low, high) range, as training crops of high-resolution photos are.
+    ``detail`` (``train`` and ``heldout``): strength of the fine surface detail (:attr:`SynthScene.detail`).
     """
     if style != "classic":
         from mvsformerpp.synth.layouts import heldout_scene, training_scene
@@ -115,9 +120,13 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
         if style not in STYLES:
             raise ValueError(f"unknown synthetic style {style!r}; choose one of {STYLES}")
         build = training_scene if style == "train" else heldout_scene
-        return build(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
-    if sensor_width is not None:
-        raise ValueError("sensor_width needs style 'train' or 'heldout'")
+        scene = build(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
+        if not 0.0 <= detail <= 1.0:
+            raise ValueError(f"detail {detail} must lie in [0, 1] (0 = none)")
+        scene.detail = float(detail)
+        return scene
+    if sensor_width is not None or detail:
+        raise ValueError("sensor_width and detail need style 'train' or 'heldout'")
     rng = np.random.default_rng(seed)
     pal = lambda: rng.uniform(0.05, 0.95, size=(2, 3))  # noqa: E731
     surfaces = [
@@ -193,6 +202,35 @@ def _photo_albedo(scene: SynthScene, s: Surface, p: np.ndarray, n: np.ndarray, f
     return rgb * s.colors[1] + s.colors[0] * (1 - s.colors[1])  # tint, keeping the photo's structure
 
 
+DETAIL_DENSITY = 8.0
+"""Texels of the detail layer per texel of the surface's own texture (three octaves finer)."""
+
+
+def detail_factor(scene: SynthScene, s: Surface, p: np.ndarray, n: np.ndarray, footprint: np.ndarray) -> np.ndarray:
+    """Multiplicative albedo detail [N] of surface ``s``: the luminance of another photo of the texture set,
+    mapped on the surface like a photo texture at :data:`DETAIL_DENSITY` times the surface's texture
+    density, with a per-surface strength up to ``scene.detail`` (a tenth of it on ``flat`` surfaces, which
+    stay nearly textureless). The mip pyramid filters it where it is finer than a pixel, and it fades out
+    where even its coarsest level would alias, so it never adds noise that differs between views."""
+    from mvsformerpp.synth.photos import LEVELS, sample_texture
+
+    rng = np.random.default_rng([s.seed, 7])
+    strength = scene.detail * rng.uniform(0.5, 1.0) * (0.1 if s.texture == "flat" else 1.0)
+    density = DETAIL_DENSITY * (s.texels_per_unit if s.texture == "photo" else 384.0 * s.scale)
+    frame = np.eye(3) if s.frame is None else s.frame
+    q, nl = p @ frame, np.abs(n @ frame)
+    axis = nl.argmax(1)
+    rows = np.arange(len(p))
+    uv = np.stack([q[rows, np.where(axis == 0, 1, 0)], q[rows, np.where(axis == 2, 1, 2)]], 1) * density
+    uv = uv + rng.uniform(0, 4096, 2)
+    fp = footprint * density / np.maximum(nl[rows, axis], 0.3)
+    levels = scene.textures[int(rng.integers(1 << 16)) % len(scene.textures)]
+    lum = sample_texture(levels, uv, fp).mean(1)
+    mean = float(levels[-1].mean()) / 255.0
+    fade = np.clip(LEVELS - np.log2(np.maximum(fp, 1e-6)), 0.0, 1.0)
+    return np.clip(1.0 + 2.0 * strength * fade * (lum - mean), 0.0, 2.0)
+
+
 def shade(scene: SynthScene, points: np.ndarray, surf: np.ndarray, normals: np.ndarray,
           view_dirs: np.ndarray | None = None, footprint: np.ndarray | None = None) -> np.ndarray:
     """Colour [N,3] in [0,1]: albedo x (ambient + Lambert) under the scene's fixed light, plus a
@@ -209,6 +247,9 @@ def shade(scene: SynthScene, points: np.ndarray, surf: np.ndarray, normals: np.n
             rgb[m] = _photo_albedo(scene, s, points[m], normals[m], fp)
         else:
             rgb[m] = albedo(s.texture, points[m], s.colors, s.seed, s.scale)
+        if scene.detail > 0 and scene.textures:
+            fp = footprint[m] if footprint is not None else np.ones(int(m.sum()))
+            rgb[m] *= detail_factor(scene, s, points[m], normals[m], fp)[:, None]
         if s.specular > 0 and view_dirs is not None:
             nrm = normals[m] * np.sign(np.einsum("ij,ij->i", normals[m], view_dirs[m]))[:, None]  # face the viewer
             half = view_dirs[m] + scene.light
