@@ -52,3 +52,21 @@ def test_find_and_list(tmp_path):
     assert find_image(tmp_path, "00000001") == tmp_path / "00000001.JPG"
     assert find_image(tmp_path, "zz") is None
     assert [p.name for p in list_images(tmp_path)] == ["00000001.JPG", "b.png"]
+
+
+@pytest.mark.parametrize("scale", [1.0, 255.0, 4095.0])
+def test_float_tiffs_keep_their_intensities(tmp_path, scale):
+    """A 32-bit float TIFF in [0, 1] (or in 8-bit values, or another range) is a photo, not a black image."""
+    rng = np.random.default_rng(1)
+    gray = rng.integers(0, 256, size=(7, 5)).astype(np.float32) / 255.0
+    gray[0, :2] = 0.0, 1.0  # the full range: a range other than [0, 1] or [0, 255] is stretched to it
+    Image.fromarray(gray * scale if scale != 4095.0 else gray * scale + 100.0, mode="F").save(tmp_path / "f.tif")
+    out = read_image(tmp_path / "f.tif")
+    assert out.shape == (7, 5, 3) and out.dtype == np.uint8
+    np.testing.assert_allclose(out[..., 0], np.round(gray * 255), atol=1)
+
+
+def test_an_all_nan_float_image_is_refused(tmp_path):
+    Image.fromarray(np.full((4, 4), np.nan, np.float32), mode="F").save(tmp_path / "nan.tif")
+    with pytest.raises(FormatError, match="no finite value"):
+        read_image(tmp_path / "nan.tif")

@@ -49,3 +49,21 @@ def test_missing_and_wrong_size(tmp_path):
         load_masks(tmp_path / "m", ["IMG_1.jpg"], [(6, 6)])
     with pytest.raises(InputError, match="mask folder not found"):
         load_masks(tmp_path / "nope", ["IMG_1.jpg"], [(6, 8)])
+
+
+@pytest.mark.parametrize("mode", ["RGBA", "LA"])
+def test_masks_with_alpha_use_the_alpha_channel(tmp_path, mode):
+    """A cut-out (white object on a transparent background, or any colour) is read by its alpha."""
+    alpha = np.zeros((6, 8), np.uint8)
+    alpha[:, :3] = 255
+    rgb = np.full((6, 8, 3), 255, np.uint8)  # white everywhere: the grey value says nothing
+    im = Image.fromarray(np.dstack([rgb, alpha]), "RGBA")
+    (tmp_path / "m").mkdir()
+    (im if mode == "RGBA" else im.convert("LA")).save(tmp_path / "m" / "IMG_1.png")
+    (m,) = load_masks(tmp_path / "m", ["IMG_1.jpg"], [(6, 8)])
+    assert m[:, :3].all() and not m[:, 3:].any()
+    # an opaque alpha channel says nothing: the grey value decides as for any mask
+    grey = np.dstack([np.repeat(alpha[..., None], 3, -1), np.full((6, 8), 255, np.uint8)])
+    Image.fromarray(grey, "RGBA").save(tmp_path / "m" / "IMG_1.png")
+    (m,) = load_masks(tmp_path / "m", ["IMG_1.jpg"], [(6, 8)])
+    assert m[:, :3].all() and not m[:, 3:].any()

@@ -1,7 +1,9 @@
 """Photos: decode to RGB uint8, or read only the size from the file header.
 
-Arrays are ``[H, W, 3]`` uint8, RGB, top row first. Grayscale, palette, 16-bit and RGBA/LA
-images are converted (alpha is dropped, not composited).
+Arrays are ``[H, W, 3]`` uint8, RGB, top row first. Grayscale, palette, 16-bit, 32-bit float and RGBA/LA
+images are converted (alpha is dropped, not composited; :func:`read_alpha` reads it). Float images hold
+intensities in [0, 1] (the usual convention of float TIFF and of image libraries) or, when their values
+exceed 1, in [0, 255] or their own range.
 """
 
 from __future__ import annotations
@@ -49,10 +51,43 @@ def read_image(path: str | Path) -> np.ndarray:
                 hi = 65535.0 if im.mode.startswith("I;16") else max(float(arr.max()), 1.0)
                 gray = np.clip(np.round(arr / hi * 255.0), 0, 255).astype(np.uint8)
                 return np.ascontiguousarray(np.repeat(gray[:, :, None], 3, axis=2))
+            if im.mode == "F":
+                return _float_to_rgb(np.asarray(im, dtype=np.float64), path)
             rgb = im.convert("RGB")
             return np.asarray(rgb, dtype=np.uint8).copy()
         except (OSError, ValueError, SyntaxError) as e:
             raise FormatError(f"cannot decode image ({e}); the file may be truncated or corrupt", path) from e
+
+
+def _float_to_rgb(arr: np.ndarray, path: Path) -> np.ndarray:
+    finite = np.isfinite(arr)
+    if not finite.any():
+        raise FormatError("float image holds no finite value (all NaN or infinite)", path)
+    lo, hi = float(arr[finite].min()), float(arr[finite].max())
+    if hi <= 1.0 + 1e-6:  # [0, 1] (small negative values from processing are clipped)
+        scale, offset = 255.0, 0.0
+    elif lo >= 0 and hi <= 255.0:  # already 8-bit values
+        scale, offset = 1.0, 0.0
+    else:  # some other range: stretched to 8 bits
+        scale, offset = 255.0 / (hi - lo), lo
+    gray = np.clip(np.round((np.where(finite, arr, lo) - offset) * scale), 0, 255).astype(np.uint8)
+    return np.ascontiguousarray(np.repeat(gray[:, :, None], 3, axis=2))
+
+
+def read_alpha(path: str | Path) -> np.ndarray | None:
+    """The alpha channel of an image file as uint8 ``[H, W]``, or None when it has none (or it is opaque
+    everywhere: then it says nothing)."""
+    path = Path(path)
+    with _open(path) as im:
+        try:
+            if im.mode == "P" and "transparency" in im.info:
+                im = im.convert("RGBA")
+            if im.mode not in ("RGBA", "LA", "PA", "RGBa", "La"):
+                return None
+            alpha = np.asarray(im.getchannel("A"), dtype=np.uint8).copy()
+        except (OSError, ValueError, SyntaxError) as e:
+            raise FormatError(f"cannot decode image ({e}); the file may be truncated or corrupt", path) from e
+    return None if alpha.min() == 255 else alpha
 
 
 def find_image(folder: str | Path, stem: str) -> Path | None:

@@ -8,7 +8,9 @@ A mask folder is matched to the views by file name; these layouts are recognised
 * BlendedMVS: ``blended_images/NNNNNNNN_masked.jpg`` (the photo with the background blacked out; a
   BlendedMVS scene folder is accepted), a pixel belongs to the object where it is not black.
 
-Binary masks count a pixel as object where its grey value is above half. A mask must have its
+Binary masks count a pixel as object where its grey value is above half; a mask with an alpha channel
+(RGBA, grey + alpha, a palette with transparency) counts the pixels whose alpha is above half, unless
+it is opaque everywhere. A mask must have its
 photo's aspect ratio; it is resized (nearest) to the size it is applied at.
 """
 
@@ -19,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.errors import FormatError, InputError
-from mvsformerpp.io.images import find_image, read_image
+from mvsformerpp.io.images import find_image, read_alpha, read_image
 
 # Black threshold of BlendedMVS's masked photos (JPEG leaves some noise in the black background).
 _MASKED_PHOTO_BLACK = 10
@@ -60,6 +62,9 @@ def find_mask(folder: Path, index: int, name: str) -> Path | None:
 def read_mask(path: str | Path) -> np.ndarray:
     """A mask file as bool ``[H, W]`` (True = object)."""
     path = Path(path)
+    alpha = read_alpha(path)
+    if alpha is not None:
+        return alpha > 127.5
     rgb = read_image(path)
     if path.stem.endswith("_masked"):
         return rgb.max(axis=-1) > _MASKED_PHOTO_BLACK
