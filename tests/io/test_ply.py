@@ -79,3 +79,22 @@ def test_a_failed_stream_leaves_no_file(tmp_path):
         w.write(np.zeros((2, 3)), np.zeros((2, 3), np.uint8))
         w.write(np.zeros((2, 3)))  # a piece without colours
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("count", ["-1", "7", "x1"])
+def test_a_wrong_vertex_count_is_refused(tmp_path, count):
+    """A header whose vertex count is negative, not a number or smaller than the data is not read anyway."""
+    xyz = np.arange(30, dtype=np.float32).reshape(10, 3)
+    good = tmp_path / "good.ply"
+    write_ply(good, xyz)
+    raw = good.read_bytes()
+    head = raw[:raw.index(b"end_header")]
+    line = next(x for x in head.split(b"\n") if x.startswith(b"element vertex"))
+    (tmp_path / "bad.ply").write_bytes(raw.replace(line, b"element vertex " + count.encode()))
+    with pytest.raises(FormatError, match="count" if count != "7" else "announces 7 vertices but the file holds 10"):
+        read_ply(tmp_path / "bad.ply")
+    ascii_rows = "\n".join(" ".join(f"{v:g}" for v in row) for row in xyz)
+    (tmp_path / "a.ply").write_text(f"ply\nformat ascii 1.0\nelement vertex {count}\nproperty float x\n"
+                                    f"property float y\nproperty float z\nend_header\n{ascii_rows}\n")
+    with pytest.raises(FormatError, match="count" if count != "7" else "announces 7 vertices but the file holds 10"):
+        read_ply(tmp_path / "a.ply")

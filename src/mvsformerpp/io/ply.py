@@ -153,6 +153,16 @@ class PlyStreamWriter:
         return self._ctx.__exit__(exc_type, exc, tb)
 
 
+def _element_count(text: str, name: str, path: Path) -> int:
+    try:
+        count = int(text)
+    except ValueError:
+        count = -1
+    if count < 0:
+        raise FormatError(f"PLY element {name!r} has count {text!r}: expected a whole number >= 0", path)
+    return count
+
+
 def ply_vertex_count(path: str | Path) -> int:
     """The vertex count a PLY header announces (reads the header only)."""
     path = Path(path)
@@ -164,7 +174,7 @@ def ply_vertex_count(path: str | Path) -> int:
     for line in head.split(b"\n"):
         parts = line.split()
         if parts[:2] == [b"element", b"vertex"] and len(parts) == 3:
-            return int(parts[2])
+            return _element_count(parts[2].decode("ascii", errors="replace"), "vertex", path)
         if parts[:1] == [b"end_header"]:
             break
     raise FormatError("PLY header has no 'element vertex N' line", path)
@@ -196,7 +206,9 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
         if parts[0] == "format":
             fmt = parts[1]
         elif parts[0] == "element":
-            elements.append((parts[1], int(parts[2]), []))
+            if len(parts) != 3:
+                raise FormatError(f"bad PLY element line {line.strip()!r} (expected 'element NAME COUNT')", path)
+            elements.append((parts[1], _element_count(parts[2], parts[1], path), []))
         elif parts[0] == "property":
             if not elements:
                 raise FormatError("PLY property before any element", path)
@@ -224,6 +236,10 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
         if i == vertex_idx:
             if len(raw) - offset < dt.itemsize * count:
                 raise FormatError(f"PLY file is truncated: {count} vertices announced", path)
+            extra = len(raw) - offset - dt.itemsize * count
+            if i == len(elements) - 1 and extra >= dt.itemsize:
+                raise FormatError(f"PLY header announces {count} vertices but the file holds "
+                                  f"{(len(raw) - offset) // dt.itemsize}: the vertex count is wrong", path)
             arr = np.frombuffer(raw, dtype=dt, count=count, offset=offset)
             return {p[0]: arr[p[0]].astype(arr[p[0]].dtype.newbyteorder("=")) for p in props}
         offset += dt.itemsize * count
@@ -237,6 +253,10 @@ def _read_ascii(body: bytes, elements, vertex_idx: int, path: Path) -> dict[str,
     if any(p[1] is not None for p in props):
         raise FormatError("list properties in the vertex element are not supported", path)
     rows = lines[skip:skip + count]
+    if vertex_idx == len(elements) - 1 and any(r.strip() for r in lines[skip + count:]):
+        found = sum(1 for r in lines[skip:] if r.strip())
+        raise FormatError(f"PLY header announces {count} vertices but the file holds {found}: the vertex count "
+                          "is wrong", path)
     if len(rows) < count:
         raise FormatError(f"PLY file is truncated: {count} vertices announced, {len(rows)} found", path)
     try:
