@@ -266,3 +266,22 @@ def test_scene_errors(tmp_path):
         load_mvsnet_scene(root)
     with pytest.raises(InputError, match="not a folder"):
         load_mvsnet_scene(tmp_path / "missing")
+
+
+def test_two_cam_files_for_one_view_are_refused(tmp_path):
+    root = make_dtu_mvsnet(tmp_path / "s")
+    (root / "cams" / "1_cam.txt").write_text((root / "cams" / "00000001_cam.txt").read_text())
+    with pytest.raises(InputError, match="two cam files for view 1: 00000001_cam.txt and 1_cam.txt"):
+        load_mvsnet_scene(root)
+
+
+def test_an_absurd_focal_length_is_refused(tmp_path):
+    root = make_dtu_mvsnet(tmp_path / "s")
+    cam = read_cam(root / "cams" / "00000001_cam.txt")
+    cam.K[0, 0] = cam.K[1, 1] = 1e30
+    write_cam(root / "cams" / "00000001_cam.txt", cam)
+    with pytest.raises(InputError, match="field of view of .* degrees .* the intrinsics are wrong"):
+        load_mvsnet_scene(root).validate()
+    cam.K[0, 0] = cam.K[1, 1] = 20000.0  # a long telephoto (2 degrees at 640 px): fine
+    write_cam(root / "cams" / "00000001_cam.txt", cam)
+    load_mvsnet_scene(root).validate()

@@ -240,7 +240,11 @@ def cam_files(cam_dir: str | Path) -> dict[int, Path]:
     for p in Path(cam_dir).iterdir():
         m = _CAM_RE.match(p.name)
         if m and p.is_file():
-            out[int(m.group(1))] = p
+            vid = int(m.group(1))
+            if vid in out:
+                a, b = sorted((out[vid].name, p.name))
+                raise InputError(f"two cam files for view {vid}: {a} and {b}; keep one of them", Path(cam_dir))
+            out[vid] = p
     return dict(sorted(out.items()))
 
 

@@ -63,6 +63,10 @@ class View:
         return -self.R.T @ self.t
 
 
+MIN_FIELD_OF_VIEW = 0.01
+"""Degrees: narrower than any lens (a 2000 mm telephoto sees about 1 degree); a wrong focal length."""
+
+
 @dataclass
 class Scene:
     """A set of calibrated views with depth ranges and neighbour lists."""
@@ -91,6 +95,11 @@ class Scene:
                 raise InputError(f"{label}: R is not a rotation (det = {np.linalg.det(v.R):.4f})", where)
             if v.K[0, 0] <= 0 or v.K[1, 1] <= 0:
                 raise InputError(f"{label}: focal lengths must be positive (K = {v.K.tolist()})", where)
+            fov = np.degrees(2 * np.arctan(max(v.width, v.height) / 2 / max(v.K[0, 0], v.K[1, 1])))
+            if fov < MIN_FIELD_OF_VIEW:
+                raise InputError(f"{label}: a focal length of {max(v.K[0, 0], v.K[1, 1]):.6g} px for a {v.width}x"
+                                 f"{v.height} photo is a field of view of {fov:.3g} degrees (below "
+                                 f"{MIN_FIELD_OF_VIEW} degrees): the intrinsics are wrong (units? scale?)", where)
             bad = [j for j in v.neighbors if not 0 <= j < n or j == i]
             if bad:
                 raise InputError(f"{label}: neighbour indices {bad} are not other views of the scene", where)
