@@ -29,6 +29,7 @@ class FakeMVSModel(torch.nn.Module):
         self.d = float(plane_offset)  # world plane: n . X = d
         self.encoded = 0  # images encoded so far
         self.forwards = 0
+        self.views_seen = []  # views per forward
 
     def encode_images(self, imgs: torch.Tensor) -> FakeFeatures:
         assert imgs.ndim == 4 and imgs.shape[1] == 3
@@ -42,6 +43,7 @@ class FakeMVSModel(torch.nn.Module):
         # the batch's depth range, so views with different ranges must never share a batch.
         assert B == 1 and depth_values.shape[0] == 1
         self.forwards += 1
+        self.views_seen.append(V)
         if image_features is None:
             image_features = self.encode_images(imgs.flatten(0, 1))
         assert image_features.coarse.shape[0] == B * V

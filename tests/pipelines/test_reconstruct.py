@@ -328,3 +328,15 @@ def test_paper_settings_reach_the_run(scene4, tmp_path):
     assert all((v.depth_min, v.depth_max) == (0.4, 0.9) for v in fixed.views)
     with pytest.raises(InputError, match="interval-scale"):
         dataclasses.replace(FAST, interval_scale=0.0)
+
+
+def test_more_views_than_images_are_capped_with_a_word(scene4, tmp_path, caplog):
+    """--views beyond the scene's images would only repeat source views (slower, not better)."""
+    import logging
+
+    model = fake_model()
+    with caplog.at_level(logging.WARNING):
+        reconstruct(scene4, tmp_path / "out", dataclasses.replace(FAST, num_views=9), quiet=True, model=model)
+    assert "the scene has 4 images: 4 views per depth map (--views 9" in caplog.text
+    assert set(model.views_seen) == {4}
+    assert json.loads((tmp_path / "out" / "config.json").read_text())["config"]["num_views"] == 4

@@ -471,6 +471,11 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
         return fingerprint, prepare_scene(full, config), _device(config.device, ranks)
 
     fingerprint, scene, device = ranks.step(setup)
+    if config.num_views > len(scene):  # more would only repeat source views: slower, not better
+        if ranks.is_main:
+            log.warning("the scene has %d images: %d views per depth map (--views %d asks for more than there are)",
+                        len(scene), len(scene), config.num_views)
+        config = dataclasses.replace(config, num_views=len(scene))
     ranks.agree({"the input scene (cameras and images)": fingerprint})
     if config.depth_range is not None and ranks.is_main:
         warn_if_range_misses_scene(input_path, folder.root, config)
