@@ -54,3 +54,12 @@ def test_viewer_needs_a_cloud(synth_run, tmp_path):
     shutil.copytree(synth_run, out, ignore=shutil.ignore_patterns("fused.ply"))
     with pytest.raises(InputError, match="mvsformerpp fuse OUT"):
         start_viewer(out, ViewerConfig(port=free_port(), host="127.0.0.1"))
+
+
+@pytest.mark.parametrize("host, match", [("999.1.1.1", "not an address or a name"),
+                                         ("192.0.2.77", "cannot listen on --host '192.0.2.77'")])
+def test_an_address_it_cannot_listen_on_is_refused_at_once(synth_run, host, match):
+    """Instead of a server that waits forever: one error naming the address (192.0.2.0/24 is reserved for
+    documentation, so no machine has it)."""
+    with pytest.raises(InputError, match=match):
+        start_viewer(synth_run, ViewerConfig(port=free_port(), host=host))

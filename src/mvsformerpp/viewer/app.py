@@ -130,12 +130,32 @@ def view_panels(view: ViewFiles, side: int) -> dict[str, np.ndarray]:
     return panels
 
 
+def check_host(host: str) -> None:
+    """Refuse an address this machine cannot listen on (the web server would otherwise wait forever)."""
+    try:
+        infos = socket.getaddrinfo(host, 0, type=socket.SOCK_STREAM, flags=socket.AI_PASSIVE)
+    except (socket.gaierror, UnicodeError) as e:
+        raise InputError(f"--host {host!r} is not an address or a name this machine can resolve ({e}); give one of "
+                         "its addresses, e.g. 127.0.0.1 (this machine only) or 0.0.0.0 (all)") from e
+    errors = []
+    for family, kind, proto, _, addr in infos:
+        try:
+            with socket.socket(family, kind, proto) as probe:
+                probe.bind(addr)
+            return
+        except OSError as e:
+            errors.append(e.strerror or str(e))
+    raise InputError(f"cannot listen on --host {host!r} ({'; '.join(dict.fromkeys(errors))}): give an address of "
+                     "this machine, e.g. 127.0.0.1 (this machine only) or 0.0.0.0 (all)")
+
+
 def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> Viewer:
     """Load an output folder and serve it; returns at once (the server runs in background threads)."""
     viser = _import_viser()
     from mvsformerpp.io.colmap_model import rotmat_to_qvec
     from mvsformerpp.io.mvsnet import load_mvsnet_scene
 
+    check_host(config.host)
     run = open_run(folder)
     ply = run.cloud
     if ply is None:
