@@ -108,3 +108,16 @@ def test_train_refuses_a_users_folder_its_own_recipe_and_a_busy_run(tmp_path, ca
     with folder_lock(busy):
         assert main(["train", "synthetic", "-o", str(busy), "--max-steps", "1"]) == 2
     assert "another mvsformerpp run" in capsys.readouterr().err
+
+
+def test_every_recipe_trains_on_the_best_device_present(capsys):
+    """No recipe fails on a machine without CUDA: the default device is auto, and it says what it chose."""
+    import torch
+
+    from mvsformerpp.training.distributed import init_distributed
+
+    assert {r.device for r in RECIPES.values()} == {"auto"} and TrainConfig().device == "auto"
+    info = init_distributed("auto")
+    expect = "cuda" if torch.cuda.is_available() else "cpu"
+    assert info.device.type == expect
+    assert f"train: device {expect} (--device auto" in capsys.readouterr().err

@@ -34,7 +34,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--views", type=int, help="views per sample")
     p.add_argument("--seed", type=int)
     p.add_argument("--save-every", type=int, metavar="N", help="write checkpoints/last.* every N steps")
-    p.add_argument("--device", choices=("cpu", "cuda"))
+    p.add_argument("--device", choices=("auto", "cpu", "cuda"),
+                   help="auto (the default): CUDA when a CUDA device is present, else the CPU")
     p.add_argument("--precision", choices=("fp32", "bf16", "fp16"))
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",

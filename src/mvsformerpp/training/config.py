@@ -123,8 +123,8 @@ class TrainConfig:
     # ---- execution
     seed: int = 0
     """Seed of the initialisation, the data order and every sample's augmentation."""
-    device: Literal["cpu", "cuda"] = "cpu"
-    """Device of each process (under torchrun: cuda:LOCAL_RANK)."""
+    device: Literal["auto", "cpu", "cuda"] = "auto"
+    """Device of each process (under torchrun: cuda:LOCAL_RANK); ``auto``: CUDA when present, else the CPU."""
     precision: Literal["fp32", "bf16", "fp16"] = "fp32"
     """Autocast precision; fp16 uses a gradient scaler."""
     num_workers: int = 0
@@ -188,7 +188,7 @@ RECIPES: dict[str, TrainConfig] = {
         resize_base=(1200, 1600), resize_min_scale=0.45, batch_size=16, micro_batch_by_height=((704, 4), (1024, 2)),
         lr=1e-3, warmup_steps=500,
         min_lr_ratio=0.01, epochs=15, val_height=1152, val_width=1536, val_samples=0, best_metric="abs_rel",
-        precision="bf16", device="cuda", seed=123, save_every=1000, log_every=50,
+        precision="bf16", seed=123, save_every=1000, log_every=50,
     ),
     # config/mvsformer++_ft.json: BlendedMVS + DTU balanced, from a DTU model, lr 1e-4, min_lr 0.005, 10 epochs.
     # loss_weights: all four stages (set loss_weights=[0,0,0,1] for the reference's stage-4-only loss).
@@ -198,7 +198,7 @@ RECIPES: dict[str, TrainConfig] = {
         resize_base=(1536, 2048), resize_min_scale=0.375, batch_size=16, micro_batch_by_height=((704, 4), (1024, 2)),
         lr=1e-4, warmup_steps=500,
         min_lr_ratio=0.005, epochs=10, loss_weights=(1.0, 1.0, 1.0, 1.0), val_samples=0, precision="bf16",
-        device="cuda", seed=123, save_every=1000, log_every=50,
+        seed=123, save_every=1000, log_every=50,
     ),
 }
 
