@@ -2,6 +2,8 @@
 synthetic scenes) and yield images, intrinsics and depths that agree: warping a source photo into the
 reference with the ground-truth depth reproduces the reference photo."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -158,3 +160,22 @@ def test_synthetic_range_margin_widens_each_end_by_a_drawn_fraction():
     assert any(abs((1 - n) - (f - 1)) > 0.01 for n, f in drawn)
     with pytest.raises(InputError, match="range_margin"):
         SyntheticDataset(2, num_views=3, views_per_scene=3, range_margin=(0.3, 0.1))
+
+
+def test_blended_finetune_takes_a_dtu_list_for_part_of_dtu(tmp_path):
+    """A user with two DTU scans fine-tunes on BlendedMVS + those scans (the 95-scan list would refuse)."""
+    from mvsformerpp.training.config import RECIPES
+    from mvsformerpp.training.datasets import build_datasets
+
+    root, pid = make_blended(tmp_path / "blended")
+    dtu = make_dtu(tmp_path / "dtu", scans=("scan1", "scan4"), lights=range(7))
+    (tmp_path / "dtu.txt").write_text("scan1\nscan4\n")
+    (tmp_path / "val.txt").write_text("scan4\n")
+    cfg = dataclasses.replace(RECIPES["blended_finetune"], data_root=str(root), dtu_root=str(dtu))
+    with pytest.raises(InputError, match="are not in this DTU root"):
+        build_datasets(cfg)
+    train, val = build_datasets(dataclasses.replace(cfg, dtu_train_list=str(tmp_path / "dtu.txt"),
+                                                    dtu_val_list=str(tmp_path / "val.txt")))
+    blended, dtu_part = train.datasets
+    assert len(blended) == N and len(dtu_part) == 2 * N * len(cfg.light_ids)  # both scans, every light
+    assert len(val) == N  # scan4, one light

@@ -31,6 +31,12 @@ class TrainConfig:
     """DTU root (``dtu``); BlendedMVS root (``blended_finetune``; DTU then from ``dtu_root``)."""
     dtu_root: str | None = None
     """DTU root mixed into BlendedMVS fine-tuning (``blended_finetune``)."""
+    dtu_train_list: str | None = None
+    """``blended_finetune``: file listing the DTU scans mixed in (None: the 95-scan training list shipped with
+    the package; give one to fine-tune with part of DTU)."""
+    dtu_val_list: str | None = None
+    """``blended_finetune`` without ``val_list``: file listing the DTU scans validated on (None: the shipped
+    test list)."""
     train_list: str | None = None
     """File listing the training scans/scenes (None: the recipe's list shipped with the package)."""
     val_list: str | None = None

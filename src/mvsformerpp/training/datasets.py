@@ -61,13 +61,14 @@ def build_datasets(config: TrainConfig) -> tuple[MVSDataset, MVSDataset]:
         b_train_tf = ResizeCrop(BLENDED_BASE, tuple(config.resize_range), BLENDED_MIN_SCALE)
         blended = SceneDataset(blended_entries(root, scenes, list_path=config.train_list, **depth_kw),
                                resize_crop=b_train_tf, photometric=photometric, seed=config.seed, **scene_kw)
-        train = BalancedMix([blended, dtu(config.dtu_root, dtu_list("trainval"), train_tf, photometric,
-                                          config.seed)])
+        train = BalancedMix([blended, dtu(config.dtu_root, config.dtu_train_list or dtu_list("trainval"), train_tf,
+                                          photometric, config.seed)])
         if val_scenes:
             val = SceneDataset(blended_entries(root, val_scenes, list_path=config.val_list, **depth_kw),
                                resize_crop=ResizeCrop(BLENDED_BASE, (1.0, 1.0), BLENDED_MIN_SCALE, center=True),
                                seed=config.seed + 1, **scene_kw)
         else:
-            val = dtu(config.dtu_root, dtu_list("test"), val_tf, None, config.seed + 1, lights=(3,))
+            val = dtu(config.dtu_root, config.dtu_val_list or dtu_list("test"), val_tf, None, config.seed + 1,
+                      lights=(3,))
         return train, val
     raise InputError(f"unknown recipe {config.recipe!r}")
