@@ -206,6 +206,8 @@ def test_find_model_locations(tmp_path):
         ("images.txt", "1 1 0 0 0 0 0 0 1 a.png\n1.0 2.0\n", "triples"),
         ("images.txt", "1 0 0 0 0 0 0 0 1 a.png\n\n", "zero quaternion"),
         ("images.txt", "1 1 0 0\n", "IMAGE_ID QW"),
+        ("images.txt", "1 1 0 0 0 0 0 0 1 a.png\n2 1 0 0 0 0.5 0.25 61.66 1 b c.png\n\n",
+         r"line 2: expected the 2-D points of image 1 \(a.png\).*looks like the next image's line"),
         ("points3D.txt", "1 0 0 0 255 0 300 0.5\n", "outside 0..255"),
         ("points3D.txt", "1 0 0 0 255 0 0 0.5 1\n", "POINT3D_ID"),
     ],

@@ -285,3 +285,22 @@ def test_an_absurd_focal_length_is_refused(tmp_path):
     cam.K[0, 0] = cam.K[1, 1] = 20000.0  # a long telephoto (2 degrees at 640 px): fine
     write_cam(root / "cams" / "00000001_cam.txt", cam)
     load_mvsnet_scene(root).validate()
+
+
+def test_text_files_saved_with_a_byte_order_mark_read_as_without(tmp_path):
+    """Editors on Windows save UTF-8 with a BOM; cam files, pair files, Middlebury par files and COLMAP text
+    read the same with one."""
+    from mvsformerpp.io.colmap_model import read_images_text
+    from mvsformerpp.io.middlebury import read_par
+
+    bom = b"\xef\xbb\xbf"
+    src = DTU_PAIR / "00000000_cam.txt"
+    (tmp_path / "0_cam.txt").write_bytes(bom + src.read_bytes())
+    np.testing.assert_array_equal(read_cam(tmp_path / "0_cam.txt").K, read_cam(src).K)
+    (tmp_path / "pair.txt").write_bytes(bom + b"2\n0\n1 1 1.0\n1\n1 0 1.0\n")
+    assert read_pair(tmp_path / "pair.txt")[0] == [(1, 1.0)]
+    (tmp_path / "images.txt").write_bytes(bom + b"1 1 0 0 0 0 0 0 1 a.png\n\n")
+    assert read_images_text(tmp_path / "images.txt")[1].name == "a.png"
+    line = "a.png 500 0 320 0 500 240 0 0 1 1 0 0 0 1 0 0 0 1 0 0 1"  # K, R = I, t
+    (tmp_path / "x_par.txt").write_bytes(bom + f"1\n{line}\n".encode())
+    assert len(read_par(tmp_path / "x_par.txt")) == 1

@@ -147,7 +147,7 @@ def rotmat_to_qvec(R: np.ndarray) -> np.ndarray:
 
 def _text_lines(path: Path) -> list[tuple[int, str]]:
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = path.read_bytes().decode("utf-8-sig")
     except OSError as e:
         raise FormatError(f"cannot read ({e.strerror})", path) from e
     except UnicodeDecodeError as e:
@@ -165,6 +165,14 @@ def _num(tok: str, path: Path, lineno: int, kind=float):
     if kind is int and not -(2**63) <= v < 2**63:
         raise FormatError(f"line {lineno}: integer {tok!r} is out of range", path)
     return v
+
+
+def _is_number(tok: str) -> bool:
+    try:
+        float(tok)
+    except ValueError:
+        return False
+    return True
 
 
 def _floats_fast(tokens: list[str], path: Path, lineno: int) -> np.ndarray:
@@ -236,6 +244,10 @@ def read_images_text(path: str | Path) -> dict[int, ColmapImage]:
         cam_id = _num(tok[8], path, n, int)
         pts = lines[i + 1][1].split() if i + 1 < len(lines) else []
         pn = lines[i + 1][0] if i + 1 < len(lines) else n
+        if len(pts) >= 10 and not _is_number(pts[-1]):
+            raise FormatError(f"line {pn}: expected the 2-D points of image {iid} ({tok[9]}): 'X Y POINT3D_ID' "
+                              "triples, or an empty line when it has none; found what looks like the next image's "
+                              "line (every image takes two lines)", path)
         if len(pts) % 3:
             raise FormatError(f"line {pn}: 2-D points come as 'X Y POINT3D_ID' triples", path)
         xys = _floats_fast(pts[0::3] + pts[1::3], path, pn).reshape(2, -1).T

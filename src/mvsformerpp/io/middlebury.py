@@ -37,7 +37,7 @@ def read_par(path: str | Path) -> list[tuple[str, np.ndarray, np.ndarray, np.nda
     """Read a par file as ``[(name, K [3,3], R [3,3], t [3]), ...]`` in file order."""
     path = Path(path)
     try:
-        lines = [ln.split() for ln in path.read_bytes().decode("utf-8").splitlines()]
+        lines = [ln.split() for ln in path.read_bytes().decode("utf-8-sig").splitlines()]
     except FileNotFoundError as e:
         raise InputError("camera file not found", path) from e
     except (OSError, UnicodeDecodeError) as e:

@@ -147,7 +147,7 @@ def read_cam(path: str | Path, depth_format: DepthFormat = "auto", num_depth: in
     if num_depth < 2:
         raise ValueError(f"num_depth must be >= 2, got {num_depth}")
     try:
-        text = path.read_bytes().decode("utf-8")
+        text = path.read_bytes().decode("utf-8-sig")
     except FileNotFoundError as e:
         raise InputError("camera file not found", path) from e
     except OSError as e:

@@ -28,7 +28,7 @@ def read_pair(path: str | Path) -> Pairs:
     """Read pair.txt as ``{ref_id: [(src_id, score), ...]}`` in file order (best first by convention)."""
     path = Path(path)
     try:
-        tokens = path.read_bytes().decode("utf-8").split()
+        tokens = path.read_bytes().decode("utf-8-sig").split()
     except FileNotFoundError as e:
         raise InputError("pair file not found", path) from e
     except OSError as e:
