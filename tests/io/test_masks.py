@@ -67,3 +67,13 @@ def test_masks_with_alpha_use_the_alpha_channel(tmp_path, mode):
     Image.fromarray(grey, "RGBA").save(tmp_path / "m" / "IMG_1.png")
     (m,) = load_masks(tmp_path / "m", ["IMG_1.jpg"], [(6, 8)])
     assert m[:, :3].all() and not m[:, 3:].any()
+
+
+def test_masks_that_mark_nothing_are_refused(tmp_path):
+    for n in ("IMG_1", "IMG_2"):
+        _mask(tmp_path / "m" / f"{n}.png", left=0)
+    with pytest.raises(InputError, match="the masks mark no pixel of any view as object"):
+        load_masks(tmp_path / "m", ["IMG_1.jpg", "IMG_2.jpg"], [(6, 8), (6, 8)])
+    _mask(tmp_path / "m" / "IMG_2.png", left=2)  # one view without the object is fine
+    masks = load_masks(tmp_path / "m", ["IMG_1.jpg", "IMG_2.jpg"], [(6, 8), (6, 8)])
+    assert not masks[0].any() and masks[1].any()

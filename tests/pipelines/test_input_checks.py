@@ -165,3 +165,18 @@ def test_a_depth_range_that_misses_the_sparse_points_is_warned_about(tmp_path, c
             cfg = FAST.__class__(**{**FAST.__dict__, "depth_range": rng})
             reconstruct(project, tmp_path / f"o{k}", cfg, quiet=True, model=fake_model())
         assert ("leaves out most of the sparse points seen by 3 of 3 views" in caplog.text) == warned
+
+
+def test_all_black_masks_are_named_as_the_reason_for_an_empty_cloud(tmp_path, capsys):
+    """fuse with masks that mark nothing blames the masks, not the cameras or the depth ranges."""
+    from PIL import Image
+
+    s = with_depths(synth(tmp_path / "s"), confidence=0.9)
+    (tmp_path / "masks").mkdir()
+    for p in sorted((s / "images").iterdir()):
+        with Image.open(p) as im:
+            Image.new("L", im.size, 0).save(tmp_path / "masks" / f"{p.stem}.png")
+    assert main(["fuse", str(s), "-o", str(tmp_path / "c.ply"), "--mask-dir", str(tmp_path / "masks"),
+                 "--quiet"]) == 0
+    err = capsys.readouterr().err
+    assert "the masks mark no pixel of any view as object" in err and "check the cameras" not in err

@@ -112,6 +112,14 @@ def check_mask_size(path: Path, height: int, width: int) -> None:
 def load_masks(path: str | Path, names: list[str], sizes: list[tuple[int, int]]) -> list[np.ndarray]:
     """One bool mask per view (``names`` of the photos, ``sizes`` as (height, width) to apply them at).
 
-    Raises :class:`InputError` naming the views without a mask, or the first mask of a wrong size.
+    Raises :class:`InputError` naming the views without a mask, the first mask of a wrong size, or masks
+    that mark no pixel of any view as object.
     """
-    return [fit_mask(read_mask(p), h, w, p) for p, (h, w) in zip(mask_paths(path, names), sizes)]
+    masks = [fit_mask(read_mask(p), h, w, p) for p, (h, w) in zip(mask_paths(path, names), sizes)]
+    if masks and not any(m.any() for m in masks):
+        raise InputError(EMPTY_MASKS, mask_folder(path))
+    return masks
+
+
+EMPTY_MASKS = ("the masks mark no pixel of any view as object (all black, or all transparent): object pixels must be "
+               "white (grey above 127) or, in masks with an alpha channel, opaque")

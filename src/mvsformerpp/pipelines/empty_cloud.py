@@ -45,6 +45,11 @@ def explain_empty_cloud(depth_folder, config: FusionConfig, folder: Path, out_pl
                         count_points: Callable[[FusionConfig], int]) -> str:
     """One line: why fusion kept nothing and, where one exists, settings (tried with ``count_points``)
     that keep points."""
+    if getattr(depth_folder, "mask_paths", None):
+        from mvsformerpp.io.masks import EMPTY_MASKS, read_mask
+
+        if not any(read_mask(p).any() for p in depth_folder.mask_paths):
+            return f"fusion kept no point: {EMPTY_MASKS} (--mask-dir {depth_folder.mask_paths[0].parent})"
     pct = confidence_percentiles(depth_folder)
     seen = (f"confidences of pixels with a depth: 10% {pct[10]:.3f}, median {pct[50]:.3f}, 90% {pct[90]:.3f}"
             if pct else "no confidence maps or no pixel with a depth")
