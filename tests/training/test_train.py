@@ -88,3 +88,19 @@ def test_disk_full_keeps_the_previous_checkpoint(tmp_path, monkeypatch):
     state = torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)
     assert state["step"] == 1
     assert run_training(cfg, run, resume=True)["steps"] == 2
+
+
+def test_a_full_disk_at_the_first_save_says_to_start_again_not_to_resume(tmp_path, monkeypatch):
+    cfg = tiny_config(max_steps=1)
+    run = tmp_path / "run"
+    import mvsformerpp.training.checkpoints as C
+
+    def full(path, data):
+        raise OSError(errno.ENOSPC, "No space left on device")
+
+    monkeypatch.setattr(C, "atomic_write_bytes", full)
+    with pytest.raises(CheckpointWriteError, match=r"no checkpoint was saved before this one: free some space and "
+                                                   r"run the same command again \(without --resume\)"):
+        run_training(cfg, run)
+    monkeypatch.undo()
+    assert run_training(cfg, run)["steps"] == 1  # as advised

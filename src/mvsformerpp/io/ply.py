@@ -145,11 +145,15 @@ class PlyStreamWriter:
 
     def __exit__(self, exc_type, exc, tb):
         if exc_type is None:
-            if self._record is None:  # nothing written: an empty cloud of xyz + rgb
-                self._start(vertex_records(np.zeros((0, 3)), np.zeros((0, 3), np.uint8)).dtype)
-            self._file.seek(self._count_offset)
-            self._file.write(f"{self.count:>{_COUNT_WIDTH}d}".encode("ascii"))
-            self._file.seek(0, 2)
+            try:
+                if self._record is None:  # nothing written: an empty cloud of xyz + rgb
+                    self._start(vertex_records(np.zeros((0, 3)), np.zeros((0, 3), np.uint8)).dtype)
+                self._file.seek(self._count_offset)
+                self._file.write(f"{self.count:>{_COUNT_WIDTH}d}".encode("ascii"))
+                self._file.seek(0, 2)
+            except BaseException as e:  # the temporary file goes too, and the error names the cloud
+                self._ctx.__exit__(type(e), e, e.__traceback__)
+                raise
         return self._ctx.__exit__(exc_type, exc, tb)
 
 

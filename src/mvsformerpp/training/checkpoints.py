@@ -34,9 +34,12 @@ def _write_guard(path: Path):
         yield
     except OSError as e:
         why = "the disk is full" if e.errno in (errno.ENOSPC, errno.EDQUOT) else f"{e.strerror or e}"
-        raise CheckpointWriteError(
-            f"{path}: cannot write the checkpoint ({why}); the previous checkpoint is intact. Free some space "
-            "and continue with --resume") from e
+        fix = "free some space" if e.errno in (errno.ENOSPC, errno.EDQUOT) else "fix that"
+        if any((path.parent / f"last{k}.safetensors").is_file() for k in ("", ".prev", ".next")):
+            then = f"the previous checkpoint is intact: {fix} and continue with --resume"
+        else:
+            then = f"no checkpoint was saved before this one: {fix} and run the same command again (without --resume)"
+        raise CheckpointWriteError(f"{path}: cannot write the checkpoint ({why}); {then}") from e
 
 
 def rng_state() -> dict:
