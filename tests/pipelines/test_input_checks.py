@@ -180,3 +180,17 @@ def test_all_black_masks_are_named_as_the_reason_for_an_empty_cloud(tmp_path, ca
                  "--quiet"]) == 0
     err = capsys.readouterr().err
     assert "the masks mark no pixel of any view as object" in err and "check the cameras" not in err
+
+
+@pytest.mark.parametrize("name", ["plain", "with space", "new\nline", "tab\tand\\back", "quo'te", "bad\udcff byte"])
+def test_printed_commands_name_every_file_exactly_on_one_line(tmp_path, name):
+    """The advice's command line survives a shell, whatever the folder is called (newlines, quotes, bad bytes)."""
+    import os
+    import subprocess
+
+    from mvsformerpp.pipelines.empty_cloud import shell_quote
+
+    quoted = shell_quote(name)
+    assert "\n" not in quoted
+    out = subprocess.run(["sh", "-c", f"printf %s {quoted}"], capture_output=True, check=True).stdout
+    assert out == os.fsencode(name)

@@ -38,7 +38,17 @@ def fuse_command(folder: Path, out_ply: Path, config: FusionConfig) -> str:
     args = ["mvsformerpp", "fuse", str(folder), "-o", str(out_ply), "--fusion", config.method,
             "--conf", f"{config.conf_threshold:g}", "--disp", f"{config.disp_threshold:g}",
             "--num-consistent", str(config.num_consistent), "--num-src-views", str(config.num_src_views)]
-    return shlex.join(args)
+    return " ".join(shell_quote(a) for a in args)
+
+
+def shell_quote(arg: str) -> str:
+    """``arg`` quoted for a POSIX shell, on one line: a name holding a newline or another control character
+    becomes ``"$(printf '...')"`` with the character escaped, so the printed command still names that file."""
+    if arg.isprintable():
+        return shlex.quote(arg)
+    escaped = "".join(c if c.isprintable() and c != "\\" else
+                      "".join(f"\\0{b:03o}" for b in c.encode("utf-8", "surrogateescape")) for c in arg)
+    return f"\"$(printf '%b' {shlex.quote(escaped)})\""
 
 
 def explain_empty_cloud(depth_folder, config: FusionConfig, folder: Path, out_ply: Path,
