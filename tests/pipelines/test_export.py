@@ -1,5 +1,6 @@
 """COLMAP export: read back with pycolmap, depth maps identical, COLMAP's own fusion runs on it."""
 
+
 import numpy as np
 import pytest
 
@@ -70,8 +71,38 @@ def test_export_refuses_a_non_empty_folder(synth_run, tmp_path, capsys):
     with pytest.raises(InputError, match="--overwrite"):
         export_colmap(synth_run, ws, quiet=True)
     assert (ws / "keep.txt").read_text() == "mine"
-    assert main(["export", str(synth_run), "--to", "colmap", str(ws), "--overwrite", "--quiet"]) == 0
-    assert not (ws / "keep.txt").exists() and (ws / "sparse" / "cameras.bin").is_file()
+    # --overwrite replaces an earlier export, never a folder of the user's own files
+    assert main(["export", str(synth_run), "--to", "colmap", str(ws), "--overwrite", "--quiet"]) == 2
+    assert "replaces only an empty folder or a COLMAP workspace" in capsys.readouterr().err
+    assert (ws / "keep.txt").read_text() == "mine"
+    ws2 = tmp_path / "ws2"
+    assert main(["export", str(synth_run), "--to", "colmap", str(ws2), "--quiet"]) == 0
+    (ws2 / "sparse" / "stale.txt").write_text("from before")
+    assert main(["export", str(synth_run), "--to", "colmap", str(ws2), "--overwrite", "--quiet"]) == 0
+    assert not (ws2 / "sparse" / "stale.txt").exists() and (ws2 / "sparse" / "cameras.bin").is_file()
     assert [p.name for p in tmp_path.iterdir() if p.name.startswith(".")] == []  # no temporary left
-    assert main(["export", str(tmp_path / "nothing"), "--to", "colmap", str(tmp_path / "ws2")]) == 2
+    assert main(["export", str(tmp_path / "nothing"), "--to", "colmap", str(tmp_path / "ws3")]) == 2
     assert "mvsformerpp reconstruct" in capsys.readouterr().err
+
+
+def test_overwrite_never_deletes_the_reconstruction_or_the_photos(synth_run, tmp_path, capsys):
+    import shutil
+
+    parent = tmp_path / "parent"
+    out = parent / "out"
+    shutil.copytree(synth_run, out, symlinks=True)
+    for p in (parent / "images", parent / "sparse", parent / "stereo"):
+        p.mkdir()  # looks like a workspace, and it holds the reconstruction
+    assert main(["export", str(out), "--to", "colmap", str(parent), "--overwrite", "--quiet"]) == 2
+    assert "holds the reconstruction" in capsys.readouterr().err and (out / "depth_est").is_dir()
+    photos = tmp_path / "shoot" / "images"  # the photos the run read, linked from OUT/images as reconstruct does
+    photos.mkdir(parents=True)
+    for link in sorted((out / "images").iterdir()):
+        shutil.move(link.resolve(), photos / link.name)
+        link.unlink(missing_ok=True)
+        link.symlink_to(photos / link.name)
+    for sub in ("sparse", "stereo"):  # their folder looks like a workspace (an earlier export read back)
+        (photos.parent / sub).mkdir()
+    assert main(["export", str(out), "--to", "colmap", str(photos.parent), "--overwrite", "--quiet"]) == 2
+    assert "holds the input photos" in capsys.readouterr().err
+    assert photos.is_dir() and any(photos.iterdir())

@@ -45,10 +45,20 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
                          target)
     if target.resolve() == folder.resolve() or folder.resolve() in target.resolve().parents:
         raise InputError("export into a folder outside the reconstruction (OUT), not inside it", target)
+    if target.resolve() in folder.resolve().parents:
+        raise InputError(f"the export target holds the reconstruction {folder}, which --overwrite would delete; "
+                         "export into a folder outside it", target)
     if not (folder / "cams").is_dir() or not (folder / "depth_est").is_dir():
         raise InputError("no depth maps here (cams/ and depth_est/); make them with "
                          "`mvsformerpp reconstruct INPUT -o OUT`", folder)
     scene, depths, _, photos = load_depth_folder(folder)
+    holds = [v.image_path for v in scene.views if target.resolve() in Path(v.image_path).resolve().parents]
+    if holds and target.exists():
+        raise InputError(f"the export target holds the input photos ({holds[0]}), which --overwrite would delete; "
+                         "export into a folder outside it", target)
+    if target.exists() and overwrite and not _is_workspace(target):
+        raise InputError("--overwrite replaces only an empty folder or a COLMAP workspace (images/, sparse/, "
+                         "stereo/) and this is neither; choose another folder", target)
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
     try:
@@ -85,6 +95,14 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
               f"  fuse with COLMAP : colmap stereo_fusion --workspace_path {target} --output_path fused.ply\n"
               f"  OpenMVS          : InterfaceCOLMAP -i {target} -o scene.mvs --image-folder {target}/images")
     return target
+
+
+def _is_workspace(path: Path) -> bool:
+    """An empty folder, or one laid out as the COLMAP workspace this command writes."""
+    if not path.is_dir():
+        return False
+    names = {p.name for p in path.iterdir()}
+    return not names or {"images", "sparse", "stereo"} <= names
 
 
 def sparse_points(scene, depths, photos, images: dict, per_view: int = 2000, tolerance: float = 0.01,
