@@ -207,6 +207,65 @@ def _file(d: Path, name: str, data: bytes = b"x") -> Path:
     return d / name
 
 
+def _duplicate_cam(d: Path) -> list[str]:
+    s = scene(d)
+    shutil.copy(s / "cams" / "00000001_cam.txt", s / "cams" / "1_cam.txt")
+    return recon(d, src=s)
+
+
+def _huge_focal(d: Path) -> list[str]:
+    from mvsformerpp.io.mvsnet import read_cam, write_cam
+
+    s = scene(d)
+    cam = read_cam(s / "cams" / "00000001_cam.txt")
+    cam.K[0, 0] = cam.K[1, 1] = 1e30
+    write_cam(s / "cams" / "00000001_cam.txt", cam)
+    return recon(d, src=s)
+
+
+def _images_without_points_line(d: Path) -> list[str]:
+    project = colmap_project(d)
+    path = project / "sparse" / "0" / "images.txt"
+    lines = path.read_text().splitlines()
+    first = next(i for i, ln in enumerate(lines) if ln and not ln.startswith("#"))
+    del lines[first + 1]  # the first image's 2-D points line
+    path.write_text("\n".join(lines) + "\n")
+    return recon(d, src=project)
+
+
+def _black_masks(d: Path) -> list[str]:
+    from PIL import Image
+
+    s = scene(d)
+    (d / "masks").mkdir()
+    for p in sorted((s / "images").iterdir()):
+        with Image.open(p) as im:
+            Image.new("L", im.size, 0).save(d / "masks" / f"{p.stem}.png")
+    return recon(d, "--mask-dir", str(d / "masks"), src=s)
+
+
+def _ply_count(d: Path, count: str) -> Path:
+    path = cloud(d / "p.ply")
+    raw = path.read_bytes()
+    line = next(x for x in raw[:raw.index(b"end_header")].split(b"\n") if x.startswith(b"element vertex"))
+    path.write_bytes(raw.replace(line, b"element vertex " + count.encode()))
+    return path
+
+
+def _export_into_parent(d: Path) -> list[str]:
+    out = fused_folder(d)
+    for sub in ("images", "sparse", "stereo"):
+        (d / sub).mkdir(exist_ok=True)
+    return ["export", str(out), "--to", "colmap", str(d), "--overwrite", "--quiet"]
+
+
+def _export_over_user_folder(d: Path) -> list[str]:
+    out = fused_folder(d)
+    (d / "mine").mkdir()
+    (d / "mine" / "notes.txt").write_text("keep")
+    return ["export", str(out), "--to", "colmap", str(d / "mine"), "--overwrite", "--quiet"]
+
+
 CASES: list[Case] = [
     # reconstruct: the input
     Case("recon-missing-input", "INPUT does not exist", lambda d: recon(d, src=d / "nowhere"), "no such file"),
@@ -227,6 +286,13 @@ CASES: list[Case] = [
     Case("recon-duplicate-sources", "pair.txt lists a source view twice", _duplicate_sources, "twice"),
     Case("recon-pair-out-of-range", "pair.txt names a view that does not exist",
          lambda d: recon(d, src=_pair(d, "3\n0\n2 7 1.0 1 0.5\n1\n2 0 1.0 2 0.5\n2\n2 0 1.0 1 0.5\n")), "7"),
+    Case("recon-cam-duplicate", "two cam files for one view (`1_cam.txt` beside `00000001_cam.txt`)", _duplicate_cam,
+         "two cam files for view 1"),
+    Case("recon-focal-huge", "a focal length of 1e30 pixels", _huge_focal, "field of view"),
+    Case("recon-colmap-missing-points-line", "a COLMAP images.txt missing an image's 2-D points line",
+         _images_without_points_line, "2-D points of image"),
+    Case("recon-masks-all-black", "--mask-dir whose masks are all black", _black_masks,
+         "mark no pixel of any view as object"),
     Case("recon-cam-nan", "a cam file with a NaN in its rotation",
          lambda d: recon(d, src=_cam_token(d, 1, "nan")), "non-finite"),
     Case("recon-depth-line-zero-interval", "a depth line `MIN 0` (zero interval)",
@@ -309,7 +375,22 @@ CASES: list[Case] = [
     Case("eval-json-is-photo", "evaluate --json pointing at a photo",
          lambda d: (lambda s: ["evaluate", "cloud", str(s / "fused.ply"), str(s / "fused.ply"), "--threshold", "1",
                                "--json", str(s / "images" / "00000000.png")])(fused_folder(d)), "not a JSON"),
+    Case("mesh-disk-full", "the disk fills up while mesh writes the mesh",
+         lambda d: ["mesh", str(fused_folder(d)), "-o", str(d / "m.ply"), "--quiet"], r"m\.ply.*No space left",
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.utils.atomic", "os.fsync")),
+    Case("export-overwrite-parent", "export OUT --to colmap PARENT --overwrite, PARENT holding OUT",
+         _export_into_parent, "holds the reconstruction"),
+    Case("export-overwrite-user-folder", "export --overwrite onto a folder of the user's own files",
+         _export_over_user_folder, "replaces only an empty folder or a COLMAP workspace"),
+    Case("view-host-unknown", "view --host 999.1.1.1",
+         lambda d: ["view", str(fused_folder(d)), "--host", "999.1.1.1"], "--host"),
     # evaluate
+    Case("eval-ply-count-negative", "a PLY whose header announces -1 vertices",
+         lambda d: ["evaluate", "cloud", str(_ply_count(d, "-1")), str(cloud(d / "g.ply")), "--threshold", "1"],
+         "count"),
+    Case("eval-ply-count-short", "a PLY whose header announces fewer vertices than it holds",
+         lambda d: ["evaluate", "cloud", str(_ply_count(d, "7")), str(cloud(d / "g.ply")), "--threshold", "1"],
+         "announces 7 vertices but the file holds 200"),
     Case("eval-cloud-threshold-zero", "evaluate cloud --threshold 0",
          lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "0"],
          "--threshold"),
@@ -345,6 +426,10 @@ CASES: list[Case] = [
     Case("synth-huge", "synth --height 100000 --width 100000",
          lambda d: ["synth", str(d / "s"), "--height", "100000", "--width", "100000"], "--height"),
     Case("synth-views-1", "synth --views 1", lambda d: ["synth", str(d / "s"), "--views", "1"], "--views"),
+    Case("synth-detail-classic", "synth --detail 0.5 with the classic style",
+         lambda d: ["synth", str(d / "s"), "--detail", "0.5"], "--detail"),
+    Case("synth-detail-nan", "synth --style train --detail nan",
+         lambda d: ["synth", str(d / "s"), "--style", "train", "--detail", "nan"], "--detail"),
     Case("synth-seed-negative", "synth --seed -1", lambda d: ["synth", str(d / "s"), "--seed", "-1"], "--seed"),
     # mesh
     Case("mesh-trim-150", "mesh --method poisson --trim 150",
@@ -429,13 +514,19 @@ Other failures the suite provokes, beyond one-line messages:
 - `kill -9` in the middle of a run, then the same command again: the result is byte for byte the one
   of an uninterrupted run, and the temporaries of the killed run are gone (`reconstruct`:
   `tests/pipelines/test_output_safety.py`; `fuse`, killed inside its final write:
-  `tests/pipelines/test_input_checks.py`; `train --resume`: `tests/training/test_train_slow.py`).
+  `tests/pipelines/test_input_checks.py`; `train --resume`: `tests/training/test_train_slow.py`, where the
+  resumed run's `last.safetensors` and `last.state.pt` (optimiser, schedule, random state) are byte for byte
+  the uninterrupted run's). A kill at any instant of saving a checkpoint leaves a pair to resume from
+  (`tests/training/test_checkpoints.py`).
 - Two processes writing into one folder: the second stops and names the first's pid and host
   (`tests/pipelines/test_output_safety.py`).
 - Checkpoints crafted to run code when unpickled (a pickled `os.system` call, alone or inside an
   official-layout dict; torch zip files whose pickle walks `_rebuild_tensor_v2.__builtins__.get` to
   `eval` by a protocol-4 dotted name; a dotted tail on an admitted name): each is shown to run under
   an unrestricted load, then refused without running (`tests/models/test_checkpoint.py`).
+- Inputs that used to be misread are now read as meant: 32-bit float TIFF photos (intensities in [0, 1]),
+  masks with an alpha channel, text files saved with a UTF-8 byte order mark (`tests/io/`); `--views`
+  beyond the scene's images is capped at them, with a warning (`tests/pipelines/test_reconstruct.py`).
 - Resume after editing one depth line, one `pair.txt` line or one photo recomputes exactly the views
   that depend on it (`tests/pipelines/test_resume_validity.py`).
 

@@ -203,3 +203,31 @@ def test_crafted_checkpoint_never_runs_code(tmp_path, kind):
     msg = str(err.value)
     assert msg.startswith(str(path)) and "\n" not in msg
     assert "refusing to load" in msg or "cannot read" in msg
+
+
+def test_safetensors_files_are_byte_identical_for_equal_content(tmp_path):
+    """Same tensors and metadata, any insertion order, any process: the same bytes, readable by safetensors."""
+    import subprocess
+    import sys
+
+    from safetensors import safe_open
+
+    from mvsformerpp.models.checkpoint import safetensors_bytes
+
+    g = torch.Generator().manual_seed(0)
+    tensors = {"w": torch.randn(3, 4, generator=g), "b16": torch.randn(5, generator=g).bfloat16(),
+               "h": torch.randn(2, 2, generator=g).half(), "n": torch.arange(7), "flag": torch.tensor([True, False]),
+               "empty": torch.zeros(0, 3), "scalar": torch.tensor(2.5, dtype=torch.float64),
+               "u": torch.arange(4).byte()}
+    meta = {f"key{i}": str(i) for i in range(12)}
+    data = safetensors_bytes(tensors, meta)
+    assert data == safetensors_bytes(dict(reversed(tensors.items())), dict(reversed(meta.items())))
+    (tmp_path / "a.safetensors").write_bytes(data)
+    with safe_open(str(tmp_path / "a.safetensors"), framework="pt") as f:
+        assert f.metadata() == meta and set(f.keys()) == set(tensors)
+        for k, v in tensors.items():
+            assert f.get_tensor(k).dtype == v.dtype and torch.equal(f.get_tensor(k), v), k
+    code = ("import sys, torch; from mvsformerpp.models.checkpoint import safetensors_bytes; "
+            "sys.stdout.buffer.write(safetensors_bytes({'a': torch.ones(3)}, {f'k{i}': 'v' for i in range(9)}))")
+    runs = [subprocess.run([sys.executable, "-c", code], capture_output=True, check=True).stdout for _ in range(2)]
+    assert runs[0] == runs[1] == safetensors_bytes({"a": torch.ones(3)}, {f"k{i}": "v" for i in range(9)})

@@ -80,6 +80,8 @@ def test_resume_after_kill_is_bit_identical(tmp_path):
     a = load_file(str(ref / "checkpoints" / "last.safetensors"))
     b = load_file(str(run / "checkpoints" / "last.safetensors"))
     assert a.keys() == b.keys() and all(torch.equal(a[k], b[k]) for k in a)
+    for name in ("last.safetensors", "last.state.pt"):  # weights, optimiser, schedule and random state: all of it
+        assert (ref / "checkpoints" / name).read_bytes() == (run / "checkpoints" / name).read_bytes(), name
     rows = lambda p: [json.loads(x) for x in (p / "metrics.jsonl").read_text().splitlines()]  # noqa: E731
     assert [r["loss"] for r in rows(ref) if "split" not in r] == [r["loss"] for r in rows(run) if "split" not in r]
 

@@ -165,9 +165,7 @@ def load_checkpoint(model: torch.nn.Module, path: str | Path) -> torch.nn.Module
 
 
 def save_checkpoint(model: torch.nn.Module, path: str | Path, extra_metadata: dict | None = None) -> Path:
-    """Write the weights and the model config to a safetensors file (atomically)."""
-    from safetensors.torch import save
-
+    """Write the weights and the model config to a safetensors file (atomically; equal content, equal bytes)."""
     from mvsformerpp.utils.atomic import atomic_write_bytes
 
     config = getattr(model, "config", None)
@@ -176,8 +174,32 @@ def save_checkpoint(model: torch.nn.Module, path: str | Path, extra_metadata: di
         meta["config"] = json.dumps(config.to_dict())
     meta.update({k: str(v) for k, v in (extra_metadata or {}).items()})
     tensors = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
-    atomic_write_bytes(path, save(tensors, metadata=meta))
+    atomic_write_bytes(path, safetensors_bytes(tensors, meta))
     return Path(path)
+
+
+_SAFETENSORS_DTYPES = {torch.float64: "F64", torch.float32: "F32", torch.float16: "F16", torch.bfloat16: "BF16",
+                       torch.int64: "I64", torch.int32: "I32", torch.int16: "I16", torch.int8: "I8",
+                       torch.uint8: "U8", torch.bool: "BOOL"}
+
+
+def safetensors_bytes(tensors: dict[str, torch.Tensor], metadata: dict[str, str] | None = None) -> bytes:
+    """A safetensors file whose bytes depend only on its content: tensors and metadata in name order (the
+    ``safetensors`` writer orders the metadata by a per-process hash, so equal checkpoints differed)."""
+    header: dict = {"__metadata__": dict(sorted((metadata or {}).items()))} if metadata else {}
+    chunks, offset = [], 0
+    for name in sorted(tensors):
+        t = tensors[name].detach().contiguous().cpu()
+        if t.dtype not in _SAFETENSORS_DTYPES:
+            raise TypeError(f"tensor {name!r}: dtype {t.dtype} has no safetensors name")
+        data = t.reshape(-1).view(torch.uint8).numpy().tobytes() if t.numel() else b""
+        header[name] = {"dtype": _SAFETENSORS_DTYPES[t.dtype], "shape": list(t.shape),
+                        "data_offsets": [offset, offset + len(data)]}
+        chunks.append(data)
+        offset += len(data)
+    head = json.dumps(header, separators=(",", ":")).encode("utf-8")
+    head += b" " * (-len(head) % 8)  # the data starts 8-byte aligned
+    return len(head).to_bytes(8, "little") + head + b"".join(chunks)
 
 
 def read_safetensors(path: str | Path) -> tuple[dict[str, torch.Tensor], ModelConfig | None]:

@@ -122,8 +122,7 @@ def write_shipped(model: torch.nn.Module, preset: str, out_dir: Path, file_name:
 
     ``info``: training facts stored in the record (command, steps, seed, wall time, summary, metrics).
     """
-    from safetensors.torch import save
-
+    from mvsformerpp.models.checkpoint import safetensors_bytes
     from mvsformerpp.utils.atomic import atomic_write_bytes, atomic_write_text
 
     out_dir = Path(out_dir)
@@ -132,7 +131,7 @@ def write_shipped(model: torch.nn.Module, preset: str, out_dir: Path, file_name:
     meta = {"format": "mvsformerpp", "config": json.dumps(model.config.to_dict()), "preset": preset,
             "storage": "fp16"}
     path = out_dir / file_name
-    atomic_write_bytes(path, save(tensors, metadata=meta))
+    atomic_write_bytes(path, safetensors_bytes(tensors, meta))
     record = {"file": file_name, "preset": preset, "bytes": path.stat().st_size, "sha256": _sha256(path), **info}
     atomic_write_text(out_dir / RECORD, json.dumps(record, indent=2) + "\n")
     shipped_record.cache_clear()

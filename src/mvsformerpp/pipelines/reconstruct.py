@@ -472,7 +472,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
 
     fingerprint, scene, device = ranks.step(setup)
     if config.num_views > len(scene):  # more would only repeat source views: slower, not better
-        if ranks.is_main:
+        if ranks.is_main and config.num_views != ReconstructConfig.num_views:  # said when asked for, not by default
             log.warning("the scene has %d images: %d views per depth map (--views %d asks for more than there are)",
                         len(scene), len(scene), config.num_views)
         config = dataclasses.replace(config, num_views=len(scene))

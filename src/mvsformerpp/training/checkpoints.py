@@ -14,6 +14,7 @@ import errno
 import io
 import os
 import random
+import sys
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -56,6 +57,20 @@ def set_rng_state(state: dict) -> None:
         torch.cuda.set_rng_state_all(state["cuda"])
 
 
+def _canonical(x):
+    """``x`` rebuilt with every string interned: pickling refers back to a string seen before by identity, so a
+    state read back from a checkpoint (fresh string objects) and one built in the run would give other bytes."""
+    if isinstance(x, dict):
+        return {_canonical(k): _canonical(v) for k, v in x.items()}
+    if isinstance(x, list):
+        return [_canonical(v) for v in x]
+    if isinstance(x, tuple):
+        return tuple(_canonical(v) for v in x)
+    if isinstance(x, str):
+        return sys.intern(x)
+    return x
+
+
 def save_training_checkpoint(folder: Path, name: str, model: torch.nn.Module, state: dict | None) -> Path:
     """Write ``NAME.state.pt`` (if ``state``) and ``NAME.safetensors``; returns the weights path.
 
@@ -71,7 +86,7 @@ def save_training_checkpoint(folder: Path, name: str, model: torch.nn.Module, st
             save_checkpoint(model, weights)
         return weights
     buf = io.BytesIO()
-    torch.save(state, buf)
+    torch.save(_canonical(state), buf)
     state_path = folder / f"{name}.state.pt"
     new_state, new_weights = folder / f"{name}.next.state.pt", folder / f"{name}.next.safetensors"
     with _write_guard(state_path):

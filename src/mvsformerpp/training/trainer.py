@@ -227,8 +227,11 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
             sampler = MultiScaleBatchSampler(len(train_ds), config.batch_size, config.resolutions or
                                              [(config.height, config.width)], seed=config.seed, epoch=epoch,
                                              rank=info.rank, world_size=info.world_size, start=start)
+            # its own generator: a loader drawing its workers' seed from the global one would make a resumed
+            # run's random state (saved in its checkpoints) differ from the uninterrupted run's
             loader = DataLoader(train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=config.num_workers,
-                                persistent_workers=False)
+                                persistent_workers=False,
+                                generator=torch.Generator().manual_seed(config.seed * 1_000_003 + epoch))
             for batch in loader:
                 micro = micro_batch_for(config, batch["imgs"].shape[-2], per_rank)
                 loss_vec, bad = _train_step(ddp_model, opt, scaler, batch, micro, per_rank, loss_weights, config,

@@ -151,11 +151,11 @@ def check_host(host: str) -> None:
 
 def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> Viewer:
     """Load an output folder and serve it; returns at once (the server runs in background threads)."""
+    check_host(config.host)  # first: a wrong address fails at once, whatever else is missing
     viser = _import_viser()
     from mvsformerpp.io.colmap_model import rotmat_to_qvec
     from mvsformerpp.io.mvsnet import load_mvsnet_scene
 
-    check_host(config.host)
     run = open_run(folder)
     ply = run.cloud
     if ply is None:
