@@ -81,3 +81,22 @@ def test_link_image_links_and_disk_full_is_reported(tmp_path, monkeypatch):
     with pytest.raises(of.DiskFullError, match="disk is full"):
         folder.write_view(0, np.ones((2, 2)), np.ones((2, 2)), "s")
     assert not folder.view_done(0, "s")
+
+
+def test_depth_previews_grey_what_fusion_drops_and_follow_a_new_threshold(tmp_path):
+    folder = of.OutputFolder(tmp_path / "out")
+    depth = np.full((6, 8), 2.0, np.float32)
+    conf = np.broadcast_to(np.linspace(0.9, 0.1, 8, dtype=np.float32), (6, 8)).copy()
+    folder.write_view(0, depth, conf, "s", preview_conf=0.5)
+
+    def grey_columns():
+        rgb = np.asarray(Image.open(tmp_path / "out" / "depth_vis" / "00000000.png")).astype(int)
+        return [bool((rgb[:, c, 0] == rgb[:, c, 1]).all() and (rgb[:, c, 1] == rgb[:, c, 2]).all())
+                for c in range(8)]
+
+    assert grey_columns() == [bool(c <= 0.5) for c in conf[0]]  # fusion keeps conf > 0.5
+    folder.redraw_previews([0], 0.5)  # the threshold the previews were drawn for: nothing to do
+    folder.progress["preview_conf"] = 0.5
+    folder.redraw_previews([0], 0.2)  # a rerun with --conf 0.2
+    assert grey_columns() == [bool(c <= 0.2) for c in conf[0]]
+    assert json.loads((tmp_path / "out" / "progress.json").read_text())["preview_conf"] == 0.2

@@ -41,10 +41,13 @@ def test_report_of_a_synthetic_run(synth_run, tmp_path, screenshot):
                      "params": {"f": 110.0, "cx": 64.0, "cy": 48.0, "k": 0.01}}]}))
     path = write_report(out)
     text = path.read_text()
-    # self-contained: nothing fetched from elsewhere, every image inlined
-    assert not re.search(r"""(src|href)\s*=\s*["'](?!data:)""", text)
+    # self-contained: nothing fetched from elsewhere, every image inlined; thumbnails link to the folder's
+    # full-size files by relative paths
+    assert not re.search(r"""src\s*=\s*["'](?!data:)""", text)
     assert "http://" not in text and "https://" not in text
     assert text.count("data:image/") == 3 * 5  # photo, depth, confidence per view
+    hrefs = re.findall(r'href="([^"]+)"', text)
+    assert len(hrefs) >= 5 and all(not h.startswith("/") and (out / h).is_file() for h in hrefs)
     facts = collect(open_run(out))
     points = facts["points"]
     assert points > 1000
@@ -128,3 +131,28 @@ def test_the_report_names_the_weights_that_ran(synth_run, tmp_path, fake_network
     config["config"].update(preset="paper")
     (out / "config.json").write_text(json.dumps(config))
     assert "paper (random initialisation)" in write_report(out).read_text()
+
+
+def test_depth_previews_show_what_fusion_keeps(synth_run, tmp_path):
+    """Pixels below the fusion threshold are grey (not a colour of the scale) and the scale follows the kept
+    pixels; the report says so, and a report written elsewhere links back to the folder's files."""
+    from mvsformerpp.utils.colormap import depth_colors
+
+    depth = np.full((10, 20), 2.0, np.float32)
+    depth[:, 10:] = np.linspace(1.0, 3.0, 10)[None]  # kept: 1 .. 3
+    depth[:, :3] = 100.0  # far background that fusion drops
+    depth[0, :] = 0.0
+    conf = np.where(depth > 50, 0.1, 0.9).astype(np.float32)
+    rgb = depth_colors(depth, conf, 0.5).astype(int)
+    dropped = rgb[1:, :3]
+    assert (dropped[..., 0] == dropped[..., 1]).all() and (dropped[..., 1] == dropped[..., 2]).all()
+    assert (rgb[0] == 0).all()  # no depth: black
+    assert (rgb[1:, 10] == turbo(np.zeros(1))[0]).all()  # the kept range spans the whole scale
+    assert np.abs(rgb[1:, 19] - turbo(np.ones(1))[0]).max() <= 40
+    # the report of a run whose confidence falls below the threshold towards the right
+    (tmp_path / "elsewhere").mkdir()
+    path = write_report(synth_run, tmp_path / "elsewhere" / "r.html")
+    text = path.read_text()
+    assert "below the fusion threshold" in text and "Click a thumbnail" in text
+    for href in re.findall(r'href="([^"]+)"', text):
+        assert (path.parent / href).resolve().is_file()

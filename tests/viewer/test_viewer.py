@@ -63,3 +63,27 @@ def test_an_address_it_cannot_listen_on_is_refused_at_once(synth_run, host, matc
     documentation, so no machine has it)."""
     with pytest.raises(InputError, match=match):
         start_viewer(synth_run, ViewerConfig(port=free_port(), host=host))
+
+
+def test_the_depth_panel_shows_what_fusion_keeps_with_a_colour_bar(synth_run):
+    """The panel greys the pixels below the run's fusion threshold and carries its colour scale."""
+    from mvsformerpp.utils.colormap import turbo
+    from mvsformerpp.viewer.app import view_panels
+    from mvsformerpp.viewer.folder import open_run
+    from mvsformerpp.viewer.report import fusion_threshold
+
+    run = open_run(synth_run)
+    threshold = fusion_threshold(run)
+    plain = view_panels(run.views[0], 200)["depth"]
+    shown = view_panels(run.views[0], 200, threshold)["depth"]
+    assert shown.shape == plain.shape and shown.shape[0] > 27  # image, gap, bar and labels
+    bar = shown[-24 + 3:-14]  # the gradient strip
+    assert np.abs(bar[0, 0].astype(int) - turbo(np.zeros(1))[0]).max() <= 5
+    assert np.abs(bar[0, -1].astype(int) - turbo(np.ones(1))[0]).max() <= 5
+    # the run's confidence falls from 0.95 at the left to 0.35 at the right: the right is grey
+    img = shown[:-27].astype(int)
+    right = img[:, -img.shape[1] // 6:]
+    grey = (np.abs(right[..., 0] - right[..., 1]) <= 1) & (np.abs(right[..., 1] - right[..., 2]) <= 1)
+    assert grey.mean() > 0.9
+    left = img[:, : img.shape[1] // 6]
+    assert ((left.max(-1) - left.min(-1)) > 60).mean() > 0.5  # coloured

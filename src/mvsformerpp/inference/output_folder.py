@@ -25,7 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.errors import InputError, MVSFormerError
-from mvsformerpp.io.pfm import write_pfm
+from mvsformerpp.io.pfm import read_pfm, write_pfm
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 from mvsformerpp.utils.colormap import confidence_to_png, depth_to_png
@@ -133,16 +133,31 @@ class OutputFolder:
     def view_done(self, i: int, state: str) -> bool:
         return self.progress["views"].get(str(i)) == state and all(p.is_file() for p in self.paths(i).values())
 
-    def write_view(self, i: int, depth: np.ndarray, confidence: np.ndarray, state: str) -> None:
-        """Write the four files of view ``i``, then record it as done."""
+    def write_view(self, i: int, depth: np.ndarray, confidence: np.ndarray, state: str,
+                   preview_conf: float | None = None) -> None:
+        """Write the four files of view ``i``, then record it as done. The depth preview greys the pixels
+        whose confidence is at most ``preview_conf`` (those fusion drops; None: none greyed)."""
         p = self.paths(i)
         with disk_full_guard(p["depth"]):
             write_pfm(p["depth"], depth)
             write_pfm(p["confidence"], confidence)
-            depth_to_png(p["depth_vis"], depth)
+            depth_to_png(p["depth_vis"], depth, confidence, preview_conf)
             confidence_to_png(p["confidence_vis"], confidence)
             self.progress["views"][str(i)] = state
             self.save_progress()
+
+    def redraw_previews(self, views: list[int], preview_conf: float | None) -> None:
+        """Main process, before new views are written: make the depth previews of the finished ``views``
+        follow ``preview_conf`` when they were drawn for another threshold (a run again with ``--conf``)."""
+        if self.progress.get("preview_conf", "unset") == preview_conf:
+            return
+        for i in views:
+            p = self.paths(i)
+            if p["depth"].is_file() and p["confidence"].is_file():
+                with disk_full_guard(p["depth_vis"]):
+                    depth_to_png(p["depth_vis"], read_pfm(p["depth"]), read_pfm(p["confidence"]), preview_conf)
+        self.progress["preview_conf"] = preview_conf
+        self.save_progress()
 
     def fusion_done(self, state: str) -> bool:
         return self.progress.get("fusion") == state and (self.root / "fused.ply").is_file()

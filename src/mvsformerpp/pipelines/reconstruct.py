@@ -497,6 +497,9 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
     if model is None:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
     keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved}, weights)
+    # the depth previews grey what fusion's confidence threshold drops
+    preview_conf = None if config.fusion == "none" else (
+        fusion_conf if fusion_conf is not None else _fusion_config(config.fusion).conf_threshold)
 
     def write_scene() -> list[int]:
         """Cameras, pairs and image links in the MVSNet layout (fusion reads them from here); the views to do."""
@@ -516,7 +519,9 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
                                           "resolved": {**resolved, "fusion_conf": fusion_conf, "weights": named},
                                           "scene_fingerprint": fingerprint, "input": str(Path(input_path).resolve()),
                                           "source_format": full.source_format, "num_views_in_input": len(full)})
-        return [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
+        todo = [i for i in range(len(scene)) if not folder.view_done(i, keys[i])]
+        folder.redraw_previews([i for i in range(len(scene)) if i not in set(todo)], preview_conf)
+        return todo
 
     todo = ranks.broadcast(ranks.step(write_scene, only_main=True))
 
@@ -542,7 +547,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
                 if stop is not None:
                     raise StoppedByOtherRank(stop)
                 res = runner.infer(i)
-                folder.write_view(i, res.depth, res.confidence, keys[i])
+                folder.write_view(i, res.depth, res.confidence, keys[i], preview_conf)
         except Exception as e:  # (exchanged with the other ranks, then raised again)
             error = e
         ranks.outcome(error)

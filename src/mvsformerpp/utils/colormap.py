@@ -53,11 +53,46 @@ def colorize(values: np.ndarray, vmin: float | None = None, vmax: float | None =
     return rgb
 
 
-def depth_to_png(path: str | Path, depth: np.ndarray) -> None:
-    """Write a colour-mapped depth preview (near = blue, far = red); 0 = black."""
+def kept_pixels(depth: np.ndarray, confidence: np.ndarray | None = None,
+                threshold: float | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """(pixels with a depth, those of them fusion keeps by confidence: above ``threshold``; all with a depth
+    when there is no confidence or no threshold)."""
     depth = np.asarray(depth)
-    rgb = colorize(depth, invalid=~(depth > 0))
-    save_png(path, rgb)
+    valid = np.isfinite(depth) & (depth > 0)
+    if confidence is None or threshold is None:
+        return valid, valid
+    return valid, valid & (np.nan_to_num(np.asarray(confidence), nan=-1.0) > threshold)
+
+
+def depth_scale(depth: np.ndarray, kept: np.ndarray, valid: np.ndarray) -> tuple[float, float]:
+    """The colour range of a depth preview: 2nd-98th percentile of the kept pixels (else of all with a
+    depth), so that what fusion drops (sky, a black background) does not stretch the scale."""
+    ref = kept if kept.any() else valid
+    if not ref.any():
+        return 0.0, 1.0
+    lo, hi = np.percentile(np.asarray(depth)[ref], [2.0, 98.0])
+    return float(lo), float(hi) if hi > lo else float(lo) + 1e-6
+
+
+def depth_colors(depth: np.ndarray, confidence: np.ndarray | None = None, threshold: float | None = None,
+                 scale: tuple[float, float] | None = None) -> np.ndarray:
+    """RGB uint8 ``[H, W, 3]`` of a depth map as fusion sees it: the pixels it keeps in colour (near = blue,
+    far = red, over ``scale``, default :func:`depth_scale`), the pixels its confidence threshold drops in
+    grey (their shading still shows the shape), pixels without depth black."""
+    valid, kept = kept_pixels(depth, confidence, threshold)
+    lo, hi = scale if scale is not None else depth_scale(depth, kept, valid)
+    rgb = colorize(np.where(valid, depth, lo), lo, hi, invalid=~valid)
+    dropped = valid & ~kept
+    if dropped.any():
+        luma = rgb[dropped].astype(np.float64) @ np.array([0.299, 0.587, 0.114])
+        rgb[dropped] = np.round(60.0 + 0.35 * luma).astype(np.uint8)[:, None]
+    return rgb
+
+
+def depth_to_png(path: str | Path, depth: np.ndarray, confidence: np.ndarray | None = None,
+                 threshold: float | None = None) -> None:
+    """Write a depth preview (:func:`depth_colors`: what fusion keeps in colour, what it drops grey)."""
+    save_png(path, depth_colors(depth, confidence, threshold))
 
 
 def confidence_to_png(path: str | Path, confidence: np.ndarray) -> None:

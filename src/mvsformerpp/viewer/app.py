@@ -111,9 +111,28 @@ def _thumb(rgb: np.ndarray, side: int) -> np.ndarray:
     return np.asarray(Image.fromarray(rgb).resize((max(1, round(w * s)), max(1, round(h * s))), Image.BILINEAR))
 
 
-def view_panels(view: ViewFiles, side: int) -> dict[str, np.ndarray]:
-    """Photo, depth and confidence images of one view for the panel (missing ones left out)."""
-    from mvsformerpp.viewer.report import map_thumbnail
+def with_colorbar(rgb: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """``rgb`` with the colour scale below it: a gradient strip and its end values."""
+    from PIL import Image, ImageDraw
+
+    from mvsformerpp.utils.colormap import turbo
+
+    w = rgb.shape[1]
+    bar = np.repeat(turbo(np.linspace(0.0, 1.0, w))[None], 10, axis=0)
+    labels = Image.new("RGB", (w, 14), (255, 255, 255))
+    draw = ImageDraw.Draw(labels)
+    left, right = f"{lo:.4g}", f"{hi:.4g}"
+    draw.text((1, 1), left, fill=(0, 0, 0))
+    draw.text((max(1, w - 1 - int(draw.textlength(right))), 1), right, fill=(0, 0, 0))
+    return np.concatenate([rgb, np.full((3, w, 3), 255, np.uint8), bar, np.asarray(labels)], axis=0)
+
+
+def view_panels(view: ViewFiles, side: int, threshold: float | None = None) -> dict[str, np.ndarray]:
+    """Photo, depth and confidence images of one view for the panel (missing ones left out). The depth is
+    shown as fusion sees it (pixels at or below the confidence ``threshold`` grey, no depth hatched), with
+    its colour bar; the confidence with its own on [0, 1]."""
+    from mvsformerpp.utils.colormap import depth_scale, kept_pixels
+    from mvsformerpp.viewer.report import depth_thumbnail, map_thumbnail
 
     panels = {}
     image = view.read_image()
@@ -121,12 +140,14 @@ def view_panels(view: ViewFiles, side: int) -> dict[str, np.ndarray]:
         panels["photo"] = _thumb(image, side)
     depth = view.read_depth()
     if depth is not None:
-        valid = np.isfinite(depth) & (depth > 0)
-        lo, hi = np.percentile(depth[valid], [2, 98]) if valid.any() else (0.0, 1.0)
-        panels["depth"] = _thumb(map_thumbnail(depth, float(lo), float(max(hi, lo + 1e-6)), valid), side)
         conf = view.read_confidence()
+        conf = conf if conf is not None and conf.shape == depth.shape else None
+        valid, kept = kept_pixels(depth, conf, threshold)
+        lo, hi = depth_scale(depth, kept, valid)
+        panels["depth"] = with_colorbar(_thumb(depth_thumbnail(depth, conf, threshold, (lo, hi)), side), lo, hi)
         if conf is not None:
-            panels["confidence"] = _thumb(map_thumbnail(conf, 0.0, 1.0, np.isfinite(conf)), side)
+            panels["confidence"] = with_colorbar(_thumb(map_thumbnail(conf, 0.0, 1.0, np.isfinite(conf)), side),
+                                                 0.0, 1.0)
     return panels
 
 
@@ -196,14 +217,17 @@ def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> V
     viewer.handles["threshold"] = threshold
 
     chooser = server.gui.add_dropdown("view", options=tuple(f"{v.stem} {v.name}" for v in run.views))
-    first = view_panels(run.views[0], config.thumbnail)
+    from mvsformerpp.viewer.report import fusion_threshold
+
+    fusion_conf = fusion_threshold(run)
+    first = view_panels(run.views[0], config.thumbnail, fusion_conf)
     images = {kind: server.gui.add_image(first[kind], label=kind) for kind in ("photo", "depth", "confidence")
               if kind in first}
     viewer.handles["panels"] = images
 
     def show_view(_=None) -> None:
         i = [f"{v.stem} {v.name}" for v in run.views].index(chooser.value)
-        for kind, img in view_panels(run.views[i], config.thumbnail).items():
+        for kind, img in view_panels(run.views[i], config.thumbnail, fusion_conf).items():
             if kind in images:
                 images[kind].image = img
     chooser.on_update(show_view)

@@ -2,10 +2,11 @@
 
 Sections: the run (input, views, working resolution, network, timings, fused points), the
 structure-from-motion outcome when it ran (registered photos, dropped ones, points, reprojection
-error, intrinsics), fusion statistics, and per view the photo, the depth map (colour bar in scene
-units; pixels without depth hatched grey, never a colour of the scale) and the confidence map with
-the depth ranges. Images are inlined as data URIs. :func:`summary_lines` gives the same run summary
-in a few lines of text for the console.
+error, intrinsics), fusion statistics, and per view the photo, the depth map as fusion sees it (colour
+bar in scene units over the pixels fusion keeps; pixels its confidence threshold drops in grey; pixels
+without depth hatched, never a colour of the scale) and the confidence map with the depth ranges.
+Thumbnails are inlined as data URIs and link to the full-size files of the folder.
+:func:`summary_lines` gives the same run summary in a few lines of text for the console.
 """
 
 from __future__ import annotations
@@ -19,7 +20,7 @@ from typing import Any
 import numpy as np
 
 from mvsformerpp.utils.atomic import atomic_write_text
-from mvsformerpp.utils.colormap import colorize, turbo
+from mvsformerpp.utils.colormap import colorize, depth_colors, depth_scale, kept_pixels, turbo
 from mvsformerpp.utils.output_guard import check_replaceable
 from mvsformerpp.viewer.folder import RunFolder, ViewFiles, depth_range_of, open_run
 
@@ -73,6 +74,18 @@ def map_thumbnail(values: np.ndarray, vmin: float, vmax: float, valid: np.ndarra
     return np.where(ok[..., None], rgb, hatch(v.shape))
 
 
+def depth_thumbnail(depth: np.ndarray, confidence: np.ndarray | None, threshold: float | None,
+                    scale: tuple[float, float]) -> np.ndarray:
+    """Thumbnail of a depth map as fusion sees it (:func:`~mvsformerpp.utils.colormap.depth_colors`), pixels
+    without depth hatched."""
+    size = _thumb_size(*depth.shape)
+    d = _resize(np.nan_to_num(depth.astype(np.float32), nan=0.0), size, nearest=True)
+    c = None if confidence is None else _resize(confidence.astype(np.float32), size, nearest=True)
+    rgb = depth_colors(d, c, threshold, scale)
+    valid, _ = kept_pixels(d)
+    return np.where(valid[..., None], rgb, hatch(d.shape))
+
+
 def _gradient_css() -> str:
     stops = turbo(np.linspace(0.0, 1.0, 11))
     return ", ".join(f"rgb({r},{g},{b}) {k * 10}%" for k, (r, g, b) in enumerate(stops))
@@ -87,7 +100,8 @@ def _fmt_s(seconds: float | None) -> str:
     return f"{seconds:.1f} s" if seconds < 120 else f"{seconds / 60:.1f} min"
 
 
-def _fusion_threshold(run: RunFolder) -> float | None:
+def fusion_threshold(run: RunFolder) -> float | None:
+    """The confidence threshold the run's fusion used (None without fusion)."""
     cfg = run.config.get("config", {})
     name = cfg.get("fusion")
     if not name or name == "none":
@@ -111,16 +125,23 @@ def view_statistics(view: ViewFiles, conf_threshold: float | None) -> dict[str, 
     stats: dict[str, Any] = {"name": view.name, "stem": view.stem, "range": depth_range_of(view)}
     if depth is None:
         return stats
-    valid = np.isfinite(depth) & (depth > 0)
+    conf = view.read_confidence()
+    if conf is not None and conf.shape != depth.shape:
+        conf = None
+    valid, kept = kept_pixels(depth, conf, conf_threshold)
     stats["size"] = [int(depth.shape[1]), int(depth.shape[0])]
     stats["valid"] = float(valid.mean())
     if valid.any():
-        lo, hi = np.percentile(depth[valid], [2.0, 98.0])
         stats["found"] = (float(depth[valid].min()), float(depth[valid].max()))
-        stats["scale"] = (float(lo), float(hi) if hi > lo else float(lo) + 1e-6)
-    conf = view.read_confidence()
+        stats["scale"] = depth_scale(depth, kept, valid)
+        rng = stats["range"]
+        if rng:  # the fine stages search around the coarse depth: their windows can step past the range
+            outside = valid & ((depth < rng[0]) | (depth > rng[1]))
+            if outside.any():
+                stats["outside"] = float(outside.sum() / valid.sum())
+                stats["outside_kept"] = float((outside & kept).sum() / outside.sum())
     if conf is not None and conf_threshold is not None:
-        stats["above_threshold"] = float((valid & (conf > conf_threshold)).mean())
+        stats["above_threshold"] = float(kept.mean())
     return stats
 
 
@@ -153,7 +174,7 @@ def collect(run: RunFolder) -> dict[str, Any]:
         "precision": cfg.get("precision"),
         "views_per_depth_map": cfg.get("num_views"),
         "fusion": cfg.get("fusion"),
-        "fusion_threshold": _fusion_threshold(run),
+        "fusion_threshold": fusion_threshold(run),
         "points": summary.get("points"),
         "timings": summary.get("timings", {}),
         "cloud": str(run.cloud) if run.cloud else None,
@@ -202,6 +223,7 @@ th{background:#f4f4f4}.num{text-align:right;font-variant-numeric:tabular-nums}
 .bar{height:10px;width:100%}.ticks{display:flex;justify-content:space-between;font-size:11px}
 .swatch{display:inline-block;width:14px;height:10px;vertical-align:middle;
 background:repeating-linear-gradient(45deg,#969696 0 3px,#d7d7d7 3px 6px)}
+.swatch.grey{background:linear-gradient(to right,#3c3c3c,#969696)}
 .warn{color:#a40}
 """
 
@@ -236,26 +258,41 @@ def _sfm_section(sfm: dict[str, Any]) -> str:
             + f"<table><tr><th>camera</th><th>model</th><th>size</th><th>parameters</th></tr>{cams}</table>")
 
 
-def _view_section(view: ViewFiles, stats: dict[str, Any], unit: str) -> str:
+def _link(img: str, target: Path | None, base: Path | None) -> str:
+    """``img`` linked to the full-size file ``target`` (relative to the report's folder ``base``)."""
+    if target is None or base is None or not target.exists():
+        return img
+    import os
+
+    href = Path(os.path.relpath(target, base)).as_posix()
+    return f'<a href="{html.escape(href, quote=True)}" title="full size">{img}</a>'
+
+
+def _view_section(view: ViewFiles, stats: dict[str, Any], unit: str, threshold: float | None = None,
+                  root: Path | None = None, base: Path | None = None) -> str:
     panels = []
     image = view.read_image()
     if image is not None:
-        panels.append(f'<div class="panel"><img alt="photo {html.escape(view.name)}" '
-                      f'src="{_data_uri(_resize(image, _thumb_size(*image.shape[:2])), "JPEG")}">'
-                      f'<div class="cap">photo</div></div>')
+        img = (f'<img alt="photo {html.escape(view.name)}" '
+               f'src="{_data_uri(_resize(image, _thumb_size(*image.shape[:2])), "JPEG")}">')
+        panels.append(f'<div class="panel">{_link(img, view.image, base)}<div class="cap">photo</div></div>')
     depth = view.read_depth()
     if depth is not None:
-        valid = np.isfinite(depth) & (depth > 0)
-        lo, hi = stats.get("scale", (0.0, 1.0))
-        panels.append(f'<div class="panel"><img alt="depth" src="{_data_uri(map_thumbnail(depth, lo, hi, valid))}">'
-                      f"{_colorbar(lo, hi)}"
-                      f'<div class="cap">depth in {html.escape(unit)} (<span class="swatch"></span> no depth)</div>'
-                      "</div>")
         conf = view.read_confidence()
+        conf = conf if conf is not None and conf.shape == depth.shape else None
+        lo, hi = stats.get("scale", (0.0, 1.0))
+        img = f'<img alt="depth" src="{_data_uri(depth_thumbnail(depth, conf, threshold, (lo, hi)))}">'
+        full = None if root is None else root / "depth_vis" / f"{view.stem}.png"
+        dropped = (' <span class="swatch grey"></span> below the fusion threshold'
+                   if threshold is not None and conf is not None else "")
+        panels.append(f'<div class="panel">{_link(img, full, base)}{_colorbar(lo, hi)}'
+                      f'<div class="cap">depth in {html.escape(unit)} (<span class="swatch"></span> no depth'
+                      f"{dropped})</div></div>")
         if conf is not None:
-            panels.append(f'<div class="panel"><img alt="confidence" '
-                          f'src="{_data_uri(map_thumbnail(conf, 0.0, 1.0, np.isfinite(conf)))}">'
-                          f'{_colorbar(0.0, 1.0)}<div class="cap">confidence</div></div>')
+            img = f'<img alt="confidence" src="{_data_uri(map_thumbnail(conf, 0.0, 1.0, np.isfinite(conf)))}">'
+            full = None if root is None else root / "confidence_vis" / f"{view.stem}.png"
+            panels.append(f'<div class="panel">{_link(img, full, base)}{_colorbar(0.0, 1.0)}'
+                          '<div class="cap">confidence</div></div>')
     else:
         panels.append('<div class="cap warn">no depth map yet</div>')
     rng, found = stats.get("range"), stats.get("found")
@@ -264,12 +301,20 @@ def _view_section(view: ViewFiles, stats: dict[str, Any], unit: str) -> str:
              f"{stats['valid']:.0%} of pixels with depth" if "valid" in stats else None,
              f"{stats['above_threshold']:.0%} above the fusion threshold" if "above_threshold" in stats else None]
     text = "; ".join(f for f in facts if f)
+    note = ""
+    if stats.get("outside"):
+        kept = stats.get("outside_kept")
+        note = (f'<div class="cap">{stats["outside"]:.1%} of the pixels with depth lie outside the searched range: '
+                "the finer stages search a window around the coarser depth, which may reach past either end of "
+                "the range" + (f"; fusion keeps {kept:.0%} of them" if kept is not None and threshold is not None
+                               else "") + "</div>")
     return (f'<div class="view"><b>{html.escape(view.stem)}</b> {html.escape(view.name)}'
-            f'<div class="cap">{html.escape(text)}</div><div class="row">{"".join(panels)}</div></div>')
+            f'<div class="cap">{html.escape(text)}</div>{note}<div class="row">{"".join(panels)}</div></div>')
 
 
-def render_report(run: RunFolder) -> str:
-    """The report's HTML text."""
+def render_report(run: RunFolder, base: Path | None = None) -> str:
+    """The report's HTML text; ``base``: the folder it is written to (thumbnails link to the full-size files
+    relative to it; None: no links)."""
     facts = collect(run)
     unit = "scene units"
     stats = [view_statistics(v, facts["fusion_threshold"]) for v in run.views]
@@ -301,14 +346,17 @@ def render_report(run: RunFolder) -> str:
     if facts["points"] is not None and with_depth:
         pixels = sum(s["size"][0] * s["size"][1] for s in with_depth)
         fusion_rows.append(("points per input pixel", f"{facts['points'] / max(pixels, 1):.3f}"))
-    views_html = "".join(_view_section(v, s, unit) for v, s in zip(run.views, stats))
+    views_html = "".join(_view_section(v, s, unit, facts["fusion_threshold"], run.root, base)
+                         for v, s in zip(run.views, stats))
     sfm_html = _sfm_section(facts["sfm"]) if facts["sfm"] else ""
     title = f"mvsformerpp report: {Path(facts['folder']).name}"
     return (f"<!DOCTYPE html><html><head><meta charset='utf-8'><title>{html.escape(title)}</title>"
             f"<style>{_CSS}</style></head><body><h1>{html.escape(title)}</h1>"
             f"<h2>Run</h2>{_table(run_rows)}{sfm_html}<h2>Fusion</h2>{_table(fusion_rows)}"
             f"<h2>Views ({len(run.views)})</h2><p class='cap'>Depth in {unit}, colour scale from the 2nd to the "
-            f"98th percentile of each view; <span class='swatch'></span> marks pixels without depth.</p>"
+            f"98th percentile of the pixels fusion keeps in each view; <span class='swatch grey'></span> marks pixels "
+            f"its confidence threshold drops, <span class='swatch'></span> pixels without depth. Click a thumbnail "
+            f"for the full-size image.</p>"
             f"<div class='views'>{views_html}</div></body></html>\n")
 
 
@@ -317,5 +365,5 @@ def write_report(folder: str | Path, out: str | Path | None = None) -> Path:
     run = open_run(folder)
     out = Path(out) if out is not None else run.root / "report.html"
     check_replaceable(out, (b"<!DOCTYPE html",), "HTML report")
-    atomic_write_text(out, render_report(run))
+    atomic_write_text(out, render_report(run, out.resolve().parent))
     return out
