@@ -40,3 +40,15 @@ def test_bad_sfm_settings():
         SfMConfig(camera_model="FISHEYE_PRO")
     with pytest.raises(InputError, match="--sfm-max-size"):
         SfMConfig(max_image_size=10)
+
+
+def test_exhaustive_matching_and_mapping_show_their_real_progress(photos, tmp_path, capsys):
+    """Every pair is matched with a progress bar that reaches all 120 pairs of 16 photos, and the registered
+    bar ends at the number of photos the model holds (the first pair included)."""
+    pytest.importorskip("pycolmap")
+    run_sfm(photos, tmp_path / "sfm", quiet=False, config=SfMConfig(max_image_size=320))
+    err = capsys.readouterr().err
+    report = json.loads((tmp_path / "sfm" / "report.json").read_text())
+    assert "SfM: matching" in err and "120/120" in err
+    assert f"{report['registered']}/16" in err.split("SfM: registered")[-1]
+    assert not (tmp_path / "sfm" / "pairs.txt").exists()

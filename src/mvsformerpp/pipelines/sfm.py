@@ -94,6 +94,32 @@ def _explained(stage: str, hint: str, where: Path):
         raise InputError(f"structure-from-motion failed while {stage} ({first}); {hint}", where) from e
 
 
+MATCH_CALLS = 50
+"""Exhaustive matching runs in about this many calls (each a group of pairs), for its progress bar."""
+
+
+def _match_all_pairs(pycolmap, database: Path, photos: list[str], pairs_file: Path, quiet: bool) -> None:
+    """Exhaustive matching (every pair of photos, geometric verification) in groups of pairs, with progress."""
+    from tqdm import tqdm
+
+    if any(any(c.isspace() for c in name) for name in photos):  # a pairs file splits names at whitespace
+        if not quiet:
+            print(f"SfM: matching {len(photos)} photos (exhaustive)", flush=True)
+        pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+        return
+    pairs = [(a, b) for i, a in enumerate(photos) for b in photos[i + 1:]]
+    size = max(1, -(-len(pairs) // MATCH_CALLS))
+    options = pycolmap.ImportedPairingOptions()
+    options.match_list_path = str(pairs_file)
+    with tqdm(total=len(pairs), desc="SfM: matching", unit="pair", disable=quiet) as bar:
+        for k in range(0, len(pairs), size):
+            group = pairs[k:k + size]
+            pairs_file.write_text("".join(f"{a} {b}\n" for a, b in group))
+            pycolmap.match_image_pairs(database, pairing_options=options, device=pycolmap.Device.cpu)
+            bar.update(len(group))
+    pairs_file.unlink(missing_ok=True)
+
+
 def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
             config: SfMConfig | None = None) -> Path:
     """Calibrate the photos in ``image_dir``; return the undistorted COLMAP project ``sfm_dir/dense``.
@@ -150,15 +176,15 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
                 pycolmap.extract_features(database, image_dir, image_names=[name], camera_mode=mode,
                                           reader_options=reader, extraction_options=opts,
                                           device=pycolmap.Device.cpu)
-        if not quiet:
-            print(f"SfM: matching {len(photos)} photos ({config.matcher})", flush=True)
         with _explained("matching", "try --matcher exhaustive, or photos with more overlap", image_dir):
             if config.matcher == "sequential":
+                if not quiet:
+                    print(f"SfM: matching {len(photos)} photos (sequential)", flush=True)
                 pairing = pycolmap.SequentialPairingOptions()
                 pairing.overlap = config.overlap
                 pycolmap.match_sequential(database, pairing_options=pairing, device=pycolmap.Device.cpu)
             else:
-                pycolmap.match_exhaustive(database, device=pycolmap.Device.cpu)
+                _match_all_pairs(pycolmap, database, photos, sfm_dir / "pairs.txt", quiet)
         features_done.touch()
 
     sparse = sfm_dir / "sparse"
@@ -168,6 +194,9 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
     with (tqdm(total=len(photos), desc="SfM: registered", unit="photo", disable=quiet) as bar,
           _explained("mapping", "take more overlapping, textured photos, or try --single-camera", image_dir)):
         models = pycolmap.incremental_mapping(database, image_dir, sparse, next_image_callback=lambda: bar.update(1))
+        if models:  # the callback counts the images added after the first pair: show the count of the model
+            bar.n = max(m.num_reg_images() for m in models.values())
+            bar.refresh()
     if not models:
         raise InputError(
             "structure-from-motion found no camera poses: the photos do not overlap enough or have too "
