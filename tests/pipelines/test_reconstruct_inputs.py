@@ -3,6 +3,7 @@
 import dataclasses
 import importlib.util
 import json
+import re
 import shutil
 import sys
 from pathlib import Path
@@ -59,8 +60,15 @@ def test_photo_folder_runs_sfm_once_and_reconstructs(photos, tmp_path, monkeypat
 
     monkeypatch.setattr(sfm, "import_pycolmap", lambda: pytest.fail("SfM ran again"))
     again = fake_model()
-    reconstruct(photos, out, FAST, quiet=True, model=again)
+    resumed = reconstruct(photos, out, FAST, quiet=True, model=again)
     assert again.forwards == 0
+    # ... and says so, with the time the SfM took when it ran
+    assert summary["timings"]["sfm_reused"] is False and resumed["timings"]["sfm_reused"] is True
+    assert sfm_report["seconds"] > 0
+    import html
+
+    page = html.unescape((out / "report.html").read_text())
+    assert re.search(r"SfM [0-9.]+ (s|min) \(an earlier run's, reused\)", page)
 
 
 def test_distorted_colmap_project_is_undistorted_first(photos, tmp_path):

@@ -156,3 +156,21 @@ def test_depth_previews_show_what_fusion_keeps(synth_run, tmp_path):
     assert "below the fusion threshold" in text and "Click a thumbnail" in text
     for href in re.findall(r'href="([^"]+)"', text):
         assert (path.parent / href).resolve().is_file()
+
+
+def test_a_run_again_says_what_it_reused(tmp_path, capsys, fake_network):
+    """The summary of a resumed run names the views and the fusion it reused instead of computing."""
+    from mvsformerpp.cli.reconstruct import print_summary
+    from mvsformerpp.pipelines.demo import temple_dir
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+
+    cfg = ReconstructConfig(preset="lite", max_size=128, num_views=3, num_depth=32, cache_mb=64, max_images=3)
+    out = tmp_path / "out"
+    first = reconstruct(temple_dir(), out, cfg, quiet=True, model=fake_network())
+    assert first["timings"]["views_reused"] == 0 and first["timings"]["fusion_reused"] is False
+    again = reconstruct(temple_dir(), out, cfg, quiet=True, model=fake_network())
+    assert again["timings"]["views_reused"] == 3 and again["timings"]["fusion_reused"] is True
+    print_summary(again, out)
+    printed = capsys.readouterr().out
+    assert "(0 views computed, 3 reused)" in printed and "fusion reused" in printed
+    assert "3 reused" in (out / "report.html").read_text()

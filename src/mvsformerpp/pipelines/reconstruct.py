@@ -457,7 +457,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
     from mvsformerpp.inference.ranks import StoppedByOtherRank
 
     timings: dict[str, float] = {}
-    t0 = time.perf_counter()
+    t0, started = time.perf_counter(), time.time()
     ranks.agree({"INPUT": str(input_path), "-o": str(out_dir),
                  **{_flag(k): v for k, v in dataclasses.asdict(config).items()}})
     folder = ranks.in_turn(lambda: _open_folder(out_dir, ranks))
@@ -484,6 +484,9 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
 
         load_masks(config.mask_dir, [v.name for v in scene.views], [(v.height, v.width) for v in scene.views])
     timings["input_s"] = time.perf_counter() - t0
+    sfm_report = folder.root / "sfm" / "report.json"
+    if sfm_report.is_file():  # written only when SfM runs: older than this run means reused
+        timings["sfm_reused"] = sfm_report.stat().st_mtime < started
 
     sizes = [(v.width, v.height) for v in scene.views]
     budget = config.memory_gb * 2**30 if config.memory_gb else 0.5 * available_memory_bytes(device)
@@ -554,6 +557,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
         cache_stats = runner.cache.stats()
     timings["depth_s"] = time.perf_counter() - t1
     timings["views_computed"] = len(todo)
+    timings["views_reused"] = len(scene) - len(todo)
     per_rank = ranks.gather({"views": len(ranks.shard(schedule["order"])) if schedule else 0,
                              "depth_s": round(timings["depth_s"], 3), "feature_cache": cache_stats})
 
@@ -566,7 +570,8 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
             fusion_state = settings_hash({"depth": keys, "fusion": config.fusion, "conf": fusion_conf,
                                           **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir
                                              else {})})
-            if not folder.fusion_done(fusion_state):
+            timings["fusion_reused"] = folder.fusion_done(fusion_state)
+            if not timings["fusion_reused"]:
                 with disk_full_guard(ply):
                     _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, fusion_conf,
                                 config.mask_dir)
@@ -584,7 +589,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
             "preset": config.preset,
             "checkpoint": config.checkpoint,
             "weights": describe_weights(config) if model is None else "a network given by the caller",
-            "timings": {k: round(v, 3) for k, v in timings.items()},
+            "timings": {k: round(v, 3) if isinstance(v, float) else v for k, v in timings.items()},
             "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
             "schedule": None if schedule is None else {k: v for k, v in schedule.items() if k != "order"},
             "ranks": per_rank if ranks.distributed else None,

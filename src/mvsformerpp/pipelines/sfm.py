@@ -21,6 +21,7 @@ import dataclasses
 import json
 import logging
 import shutil
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Literal
@@ -41,13 +42,16 @@ def import_pycolmap():
     return pycolmap
 
 
-def write_sfm_report(model_dir: Path, photos: list[str], path: Path) -> dict:
-    """Write the outcome of SfM (registered and dropped photos, points, error, intrinsics) as JSON."""
+def write_sfm_report(model_dir: Path, photos: list[str], path: Path, seconds: float | None = None) -> dict:
+    """Write the outcome of SfM (registered and dropped photos, points, error, intrinsics and, given, the
+    seconds it took) as JSON."""
     from mvsformerpp.io.colmap_model import read_model
     from mvsformerpp.io.colmap_stats import model_statistics
     from mvsformerpp.utils.atomic import atomic_write_text
 
     stats = model_statistics(read_model(model_dir), photos)
+    if seconds is not None:
+        stats["seconds"] = round(float(seconds), 3)
     atomic_write_text(path, json.dumps(stats, indent=2) + "\n")
     return stats
 
@@ -139,6 +143,7 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
     if done.is_file() and (dense / "sparse").is_dir() and same:
         log.info("SfM already done in %s; reusing it", sfm_dir)
         return dense
+    t0 = time.perf_counter()
     pycolmap = import_pycolmap()
     photos = [p.name for p in list_images(image_dir)]
     if len(photos) < 2:
@@ -212,7 +217,7 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
         shutil.rmtree(best_dir)
     best_dir.mkdir()
     best.write(best_dir)
-    stats = write_sfm_report(best_dir, photos, sfm_dir / "report.json")
+    stats = write_sfm_report(best_dir, photos, sfm_dir / "report.json", seconds=time.perf_counter() - t0)
     log.info("SfM registered %d of %d photos", best.num_reg_images(), len(photos))
     if not quiet and stats["dropped"]:
         print(f"SfM: {len(stats['dropped'])} of {len(photos)} photos did not register: "
@@ -222,5 +227,6 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
         shutil.rmtree(dense)
     with _explained("undistorting", "check the disk space and that the photos are still there", image_dir):
         pycolmap.undistort_images(dense, best_dir, image_dir)
+    write_sfm_report(best_dir, photos, sfm_dir / "report.json", seconds=time.perf_counter() - t0)  # undistortion too
     done.write_text(f"registered {best.num_reg_images()} of {len(photos)} photos\n")
     return dense

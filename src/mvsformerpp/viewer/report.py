@@ -184,7 +184,6 @@ def collect(run: RunFolder) -> dict[str, Any]:
 
 def summary_lines(facts: dict[str, Any]) -> list[str]:
     """A few lines of text: the console's version of the report's run summary."""
-    t = facts["timings"]
     lines = [f"input       : {facts['input'] or '-'} ({facts['source_format'] or '?'}), "
              f"{facts['views']} of {facts['views_in_input'] or facts['views']} views"]
     sfm = facts["sfm"]
@@ -204,9 +203,24 @@ def summary_lines(facts: dict[str, Any]) -> list[str]:
     pts = facts["points"]
     lines.append(f"fused cloud : {pts:,} points ({facts['fusion']})" if pts is not None else
                  "fused cloud : none (fusion off; run `mvsformerpp fuse` on the folder)")
-    lines.append(f"time        : input {_fmt_s(t.get('input_s'))}, depth {_fmt_s(t.get('depth_s'))}, "
-                 f"fusion {_fmt_s(t.get('fusion_s'))}, total {_fmt_s(t.get('total_s'))}")
+    lines.append(f"time        : {time_line(facts)}")
     return lines
+
+
+def time_line(facts: dict[str, Any]) -> str:
+    """Where the time went, and what a run again reused instead of computing (SfM, views, fusion)."""
+    t, sfm = facts["timings"], facts["sfm"] or {}
+    parts = []
+    if sfm.get("seconds") is not None:
+        parts.append(f"SfM {_fmt_s(sfm['seconds'])}" + (" (an earlier run's, reused)" if t.get("sfm_reused") else ""))
+    parts.append(f"input {_fmt_s(t.get('input_s'))}")
+    depth = f"depth {_fmt_s(t.get('depth_s'))}"
+    if t.get("views_reused"):
+        depth += f" ({t.get('views_computed', 0)} views computed, {t['views_reused']} reused)"
+    parts.append(depth)
+    parts.append("fusion reused" if t.get("fusion_reused") else f"fusion {_fmt_s(t.get('fusion_s'))}")
+    parts.append(f"total {_fmt_s(t.get('total_s'))}")
+    return ", ".join(parts)
 
 
 # ---------------------------------------------------------------------------------------------- html
@@ -318,7 +332,6 @@ def render_report(run: RunFolder, base: Path | None = None) -> str:
     facts = collect(run)
     unit = "scene units"
     stats = [view_statistics(v, facts["fusion_threshold"]) for v in run.views]
-    t = facts["timings"]
     canvas = facts["canvas"]
     run_rows = [
         ("input", html.escape(f"{facts['input'] or '-'} ({facts['source_format'] or 'unknown layout'})")),
@@ -330,7 +343,7 @@ def render_report(run: RunFolder, base: Path | None = None) -> str:
                                 f"{facts['device']}, {facts['precision']}, "
                                 f"{facts['views_per_depth_map']} views per depth map")),
         ("fused points", f"{facts['points']:,}" if facts["points"] is not None else "none (fusion off)"),
-        ("time", ", ".join(f"{k} {_fmt_s(t.get(k + '_s'))}" for k in ("input", "depth", "fusion", "total"))),
+        ("time", html.escape(time_line(facts))),
         ("cloud", html.escape(facts["cloud"] or "-")),
     ]
     with_depth = [s for s in stats if "valid" in s]
