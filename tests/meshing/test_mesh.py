@@ -97,3 +97,35 @@ def test_a_grid_larger_than_free_memory_is_refused_before_meshing(synth_run, tmp
     err = capsys.readouterr().err
     assert "needs up to 16.0 GB" in err and "2.0 GB free" in err and "at most --resolution 512" in err
     assert not (tmp_path / "m.ply").exists()
+
+
+def test_the_default_grid_follows_the_sampling_and_ignores_floaters(exact_run, tmp_path, capsys):
+    """Without --voxel/--resolution: voxels of 1.5 pixel footprints over the fused cloud's box, said before
+    the integration starts; stray far depths (floaters, sky) neither stretch the box nor end in the mesh's
+    extent, and the mesh still lies on the surface."""
+    import shutil
+
+    from mvsformerpp.io.pfm import write_pfm
+    from mvsformerpp.meshing.tsdf import PIXELS_PER_VOXEL
+
+    shutil.copytree(exact_run.parent, tmp_path / "copy", symlinks=True)  # the run and its scene beside it
+    run = tmp_path / "copy" / exact_run.name
+    scene = load_mvsnet_scene(run)
+    footprints = []
+    for i, view in enumerate(scene.views):  # a few far floaters in every depth map
+        path = run / "depth_est" / f"{i:08d}.pfm"
+        depth = read_pfm(path)
+        footprints.append(depth[depth > 0][::8] / (view.K[0, 0] * depth.shape[1] / view.width))
+        depth[::7, ::7] = 40.0 * depth.max()  # 2 % of the pixels: more than a robust percentile drops
+        write_pfm(path, depth)
+    out = tmp_path / "m.ply"
+    assert main(["mesh", str(run), "-o", str(out)]) == 0
+    printed = capsys.readouterr().out
+    line = next(x for x in printed.splitlines() if x.startswith("TSDF: ") and "voxels of" in x)
+    voxel = float(line.split("voxels of ")[1].split()[0])
+    assert voxel == pytest.approx(PIXELS_PER_VOXEL * np.median(np.concatenate(footprints)), rel=0.05)
+    assert "box from the fused cloud" in line and "GB" in line
+    m, verts, _ = mesh_quality(run, out)
+    gt = ply_points(read_ply(run.parent / "scene" / "gt_surface.ply"))
+    assert m.precision >= 0.85 and m.recall >= 0.85, m
+    assert (np.ptp(verts, 0) <= 1.2 * np.ptp(gt, 0) + 10 * voxel).all()  # the floaters are outside the grid

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import argparse
 
-BYTES_PER_VOXEL = 16  # TSDF value, weight and colour of a voxel, with the working copies (measured: ~15)
 MAX_POISSON_DEPTH = 13
 
 
@@ -20,9 +19,10 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("-o", "--output", required=True, metavar="MESH.ply", help="mesh to write (binary PLY)")
     p.add_argument("--method", choices=("tsdf", "poisson"), default="tsdf", help="default: tsdf")
     p.add_argument("--voxel", type=float, metavar="V",
-                   help="tsdf: voxel edge in scene units (default: the scene box's longest side / --resolution)")
-    p.add_argument("--resolution", type=int, default=256, metavar="N",
-                   help="tsdf: voxels along the scene box's longest side when --voxel is not given (default 256)")
+                   help="tsdf: voxel edge in scene units (default: 1.5 times the median size of a depth-map pixel "
+                   "on the surface, coarser only where the grid would not fit in memory)")
+    p.add_argument("--resolution", type=int, metavar="N",
+                   help="tsdf: instead, N voxels along the longest side of the scene box")
     p.add_argument("--truncation", type=float, default=4.0, metavar="VOXELS", help="tsdf: truncation (default 4)")
     p.add_argument("--min-conf", type=float, default=0.0, metavar="C",
                    help="tsdf: ignore depths at or below this confidence (default 0)")
@@ -46,12 +46,13 @@ def run(args: argparse.Namespace) -> int:
 
     if args.voxel is not None and not (math.isfinite(args.voxel) and args.voxel > 0):
         raise InputError(f"--voxel must be a positive length in scene units, got {args.voxel}")
-    if args.resolution < 8:
+    if args.resolution is not None and args.resolution < 8:
         raise InputError(f"--resolution must be at least 8 voxels, got {args.resolution}")
-    if args.method == "tsdf" and args.voxel is None:
+    if args.method == "tsdf" and args.voxel is None and args.resolution is not None:
         import torch
 
         from mvsformerpp.inference.resolution import available_memory_bytes
+        from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL
 
         need, have = BYTES_PER_VOXEL * args.resolution**3, available_memory_bytes(torch.device("cpu"))
         if need > have:

@@ -26,9 +26,11 @@ class TSDFConfig:
     """Settings of :func:`integrate`."""
 
     voxel: float | None = None
-    """Voxel edge in scene units; None = the scene box's longest side / ``resolution``."""
-    resolution: int = 256
-    """Voxels along the longest side of the scene box when ``voxel`` is None."""
+    """Voxel edge in scene units; None: from ``resolution``, or else from the depth maps' own sampling (the
+    median size of a pixel on the surface, times :data:`PIXELS_PER_VOXEL`), coarser only where the grid
+    would not fit ``max_voxels``."""
+    resolution: int | None = None
+    """Voxels along the longest side of the scene box when ``voxel`` is None (None: from the sampling)."""
     truncation: float = 4.0
     """Truncation distance in voxels (the band around the surface that a depth sample updates)."""
     min_confidence: float = 0.0
@@ -63,18 +65,91 @@ def scene_box(views: list[FusionView], percentile: float = 0.5, stride: int = 4)
     return np.percentile(allp, percentile, axis=0), np.percentile(allp, 100 - percentile, axis=0)
 
 
-def integrate(views: list[FusionView], config: TSDFConfig = TSDFConfig(), progress=None) -> TSDFVolume:
-    """Integrate the views' depth maps (confidence as weight) into a TSDF grid over their box."""
-    lo, hi = scene_box(views)
-    voxel = config.voxel or float((hi - lo).max()) / config.resolution
-    if voxel <= 0:
+BYTES_PER_VOXEL = 16
+"""TSDF value, weight and colour of a voxel, with the working copies (measured: about 15)."""
+PIXELS_PER_VOXEL = 1.5
+"""Default voxel edge in pixel footprints: about the detail the depth maps resolve, no finer."""
+
+
+def surface_box(points: np.ndarray, percentile: float = 0.5, margin: float = 0.05) -> tuple[np.ndarray, np.ndarray]:
+    """Box of the confident surface: the ``percentile`` / ``100 - percentile`` ends of ``points`` [N, 3] per
+    axis (a few stray points do not stretch it), widened by ``margin`` of its extent on every side."""
+    if len(points) == 0:
+        raise InputError("the reconstruction holds no confident point: nothing to mesh")
+    lo, hi = np.percentile(points, percentile, axis=0), np.percentile(points, 100 - percentile, axis=0)
+    pad = margin * (hi - lo).max()
+    return lo - pad, hi + pad
+
+
+def pixel_footprint(views: list[FusionView], stride: int = 8) -> float:
+    """Median size in scene units of one depth-map pixel on the surface it sees (z-depth / focal length)."""
+    sizes = []
+    for v in views:
+        d = v.depth[::stride, ::stride]
+        ok = d > 0
+        if ok.any():
+            sizes.append(d[ok].double().cpu().numpy() / float(v.K[0, 0]))
+    if not sizes:
+        raise InputError("the depth maps hold no depth at all: nothing to mesh")
+    return float(np.median(np.concatenate(sizes)))
+
+
+@dataclass(frozen=True)
+class GridPlan:
+    """Where the TSDF grid lies and how fine it is."""
+
+    lo: np.ndarray
+    voxel: float
+    dims: np.ndarray
+    note: str
+    """How the voxel size was chosen (for the console)."""
+
+    @property
+    def voxels(self) -> int:
+        return int(np.prod(self.dims))
+
+
+def plan_grid(views: list[FusionView], config: TSDFConfig = TSDFConfig(),
+              box: tuple[np.ndarray, np.ndarray] | None = None) -> GridPlan:
+    """The grid over ``box`` (default: the depth maps' robust box, :func:`scene_box`): the voxel of ``config``
+    or from the sampling, padded by the truncation band; refused (explicit voxel) or coarsened (chosen
+    voxel) where it exceeds ``config.max_voxels``."""
+    lo, hi = box if box is not None else scene_box(views)
+    lo, hi = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
+    extent = float((hi - lo).max())
+    if config.voxel:
+        voxel, note = float(config.voxel), "given"
+    elif config.resolution:
+        voxel, note = extent / config.resolution, f"box / {config.resolution}"
+    else:
+        voxel, note = PIXELS_PER_VOXEL * pixel_footprint(views), f"{PIXELS_PER_VOXEL:g} pixel footprints"
+    if not voxel > 0:
         raise InputError(f"--voxel must be positive, got {voxel}")
-    trunc = config.truncation * voxel
-    lo, hi = lo - trunc, hi + trunc
-    dims = np.maximum(np.ceil((hi - lo) / voxel).astype(np.int64), 2)
+
+    def dims_for(v: float) -> np.ndarray:
+        t = config.truncation * v
+        return np.maximum(np.ceil((hi - lo + 2 * t) / v).astype(np.int64), 2)
+
+    dims = dims_for(voxel)
     if int(np.prod(dims)) > config.max_voxels:
-        raise InputError(f"a {dims[0]}x{dims[1]}x{dims[2]} voxel grid is too large at --voxel {voxel:.4g}; "
-                         f"use a larger voxel (at least {voxel * (np.prod(dims) / config.max_voxels) ** (1 / 3):.4g})")
+        needed = voxel * (np.prod(dims) / config.max_voxels) ** (1 / 3)
+        if config.voxel or config.resolution:
+            raise InputError(f"a {dims[0]}x{dims[1]}x{dims[2]} voxel grid is too large at --voxel {voxel:.4g}; "
+                             f"use a larger voxel (at least {needed:.4g})")
+        while int(np.prod(dims)) > config.max_voxels:
+            voxel, needed = needed, needed * 1.01
+            dims = dims_for(voxel)
+        note += f", coarsened to fit {config.max_voxels:,} voxels"
+    return GridPlan(lo - config.truncation * voxel, voxel, dims, note)
+
+
+def integrate(views: list[FusionView], config: TSDFConfig = TSDFConfig(), progress=None,
+              plan: GridPlan | None = None) -> TSDFVolume:
+    """Integrate the views' depth maps (confidence as weight) into a TSDF grid (``plan``, default
+    :func:`plan_grid` over the depth maps' box)."""
+    plan = plan or plan_grid(views, config)
+    lo, voxel, dims = plan.lo, plan.voxel, plan.dims
+    trunc = config.truncation * voxel
     device = views[0].depth.device
     n = int(np.prod(dims))
     tsdf = torch.ones(n, device=device)

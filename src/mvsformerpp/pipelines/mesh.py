@@ -9,6 +9,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -57,11 +58,13 @@ def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = Mesh
 
 
 def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
+    import torch
     from tqdm import tqdm
 
     from mvsformerpp.fusion import make_views
+    from mvsformerpp.inference.resolution import available_memory_bytes
     from mvsformerpp.meshing.extract import marching_cubes
-    from mvsformerpp.meshing.tsdf import integrate
+    from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL, integrate, plan_grid, scene_box, surface_box
     from mvsformerpp.pipelines.fuse import load_depth_folder
 
     if not (folder / "cams").is_dir() or not (folder / "depth_est").is_dir():
@@ -69,8 +72,25 @@ def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
                          "`mvsformerpp reconstruct INPUT -o OUT`", folder)
     scene, depths, confs, images = load_depth_folder(folder)
     views = make_views(scene, depths, confs, images, config.device)
+    box, where = scene_box(views), "the depth maps"
+    cloud = folder / "fused.ply"
+    if cloud.is_file():  # where the confident, consistent points lie: floaters and sky do not stretch it
+        from mvsformerpp.io.ply import ply_points, read_ply
+
+        points = ply_points(read_ply(cloud), cloud)
+        if len(points) >= 100:
+            box, where = surface_box(points), "the fused cloud"
+    budget = int(0.5 * available_memory_bytes(torch.device(config.device)) / BYTES_PER_VOXEL)
+    tsdf = dataclasses.replace(config.tsdf, max_voxels=min(config.tsdf.max_voxels, budget))
+    plan = plan_grid(views, tsdf, box)
+    if not quiet:
+        d = plan.dims
+        print(f"TSDF: {d[0]}x{d[1]}x{d[2]} voxels of {plan.voxel:.4g} ({plan.note}), {plan.voxels / 1e6:.1f} M "
+              f"voxels, about {plan.voxels * BYTES_PER_VOXEL / 2**30:.2f} GB; box from {where}", flush=True)
     with tqdm(total=len(views), desc="TSDF", unit="view", disable=quiet) as bar:
-        volume = integrate(views, config.tsdf, progress=lambda: bar.update(1))
+        volume = integrate(views, tsdf, progress=lambda: bar.update(1), plan=plan)
+    if not quiet:
+        print("TSDF: extracting the surface (marching cubes)", flush=True)
     return marching_cubes(volume)
 
 
