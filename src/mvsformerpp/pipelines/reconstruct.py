@@ -18,7 +18,7 @@ import dataclasses
 import logging
 import math
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
@@ -55,7 +55,7 @@ class ReconstructConfig:
     memory_gb: float | None = None
     """Memory budget of one forward and of fusion (which streams the depth maps through a cache of this
     size); None = half of the device's free memory."""
-    num_views: int = 5
+    num_views: int = field(default=5, metadata={"flag": "--views"})
     """Views per depth map: the reference plus ``num_views - 1`` best neighbours (reference: 5 on DTU)."""
     num_depth: int = 192
     """Depth-plane count of the input range, written to the output cams (the cascade uses only the ends
@@ -75,20 +75,21 @@ class ReconstructConfig:
     fusion: Literal["normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced", "none"] = "normal"
     """Fusion preset (``mvsformerpp.fusion.PRESETS``; ``dtu``, ``tnt_intermediate`` and ``tnt_advanced`` are
     the reference's settings); ``none`` stops after the depth maps (fuse later with ``fuse``)."""
-    fusion_conf: float | None = None
+    fusion_conf: float | None = field(default=None, metadata={"flag": "--conf"})
     """Override of the fusion preset's confidence threshold (``--conf``). None: the threshold calibrated for
     the shipped default weights when they run (:func:`fusion_conf_for`), else the preset's."""
     output_resolution: Literal["original", "working"] = "original"
     """``original``: depth and confidence maps at each photo's size (upsampled from the working
     resolution); ``working``: at the working resolution, with ``images/`` resized and ``cams/`` scaled
     to match (smaller files, no upsampling, cheaper previews; fusion reads either)."""
-    sfm: SfMConfig = SfMConfig()
+    sfm: SfMConfig = field(default=SfMConfig(),
+                           metadata={"flag": "--camera-model/--single-camera/--matcher/--sfm-max-size"})
     """Structure-from-motion settings, used when INPUT is a folder of photos."""
     mask_dir: str | None = None
     """Object masks applied before fusion (:mod:`mvsformerpp.io.masks` layouts); None = no masks."""
     cache_mb: int = 2048
     """Feature-cache budget in MiB; 0 recomputes every image's features for every reference view."""
-    seed: int = 0
+    seed: int = field(default=0, metadata={"flag": None})
     """Seed of the random initialisation when no checkpoint is given (keeps resumed runs consistent)."""
 
     def __post_init__(self) -> None:
@@ -446,9 +447,13 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
         ranks.close()
 
 
-def _flag(field: str) -> str:
-    """The command-line flag of a config field (for messages)."""
-    return {"num_views": "--views"}.get(field, "--" + field.replace("_", "-"))
+def config_flag(name: str) -> str:
+    """The command-line flag of a :class:`ReconstructConfig` field (its ``flag`` metadata, else ``--name-like-this``;
+    fields without a flag are named as fields)."""
+    meta = next(f.metadata for f in dataclasses.fields(ReconstructConfig) if f.name == name)
+    if "flag" in meta:
+        return meta["flag"] or f"{name} (a ReconstructConfig field)"
+    return "--" + name.replace("_", "-")
 
 
 def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ranks) -> dict:
@@ -459,7 +464,7 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
     timings: dict[str, float] = {}
     t0, started = time.perf_counter(), time.time()
     ranks.agree({"INPUT": str(input_path), "-o": str(out_dir),
-                 **{_flag(k): v for k, v in dataclasses.asdict(config).items()}})
+                 **{config_flag(k): v for k, v in dataclasses.asdict(config).items()}})
     folder = ranks.in_turn(lambda: _open_folder(out_dir, ranks))
     ranks.check_shared_folder(folder.root)
     full = ranks.in_turn(lambda: load_input(input_path, folder.root, quiet=quiet, depth_range=config.depth_range,
