@@ -359,3 +359,18 @@ def test_every_setting_names_the_flag_that_sets_it():
             continue
         assert all(part in flags for part in name.split("/")), (f.name, name)
     assert config_flag("fusion_conf") == "--conf" and config_flag("num_views") == "--views"
+
+
+def test_the_plan_is_said_before_the_depth_maps(scene4, tmp_path, capsys):
+    out = tmp_path / "out"
+    reconstruct(scene4, out, FAST, quiet=False, model=fake_model())
+    printed = capsys.readouterr().out
+    plan = next(x for x in printed.splitlines() if x.startswith("plan: "))
+    assert "4 views at 128x96 (working resolution), 3 views per depth map; all 4 to compute" in plan
+    written = sum(p.stat().st_size for d in ("depth_est", "confidence", "depth_vis", "confidence_vis")
+                  for p in (out / d).iterdir())
+    number, unit = plan.split("about ")[1].split()[:2]
+    said = float(number) * {"MB": 2**20, "GB": 2**30}[unit]
+    assert 0.5 * written <= said <= 2 * written  # the estimate, within a factor of 2
+    reconstruct(scene4, out, FAST, quiet=False, model=fake_model())
+    assert "0 to compute, 4 done before" in capsys.readouterr().out

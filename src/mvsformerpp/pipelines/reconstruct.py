@@ -447,6 +447,29 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
         ranks.close()
 
 
+BYTES_PER_OUTPUT_PIXEL = 11
+"""Disk per pixel of a view's outputs: depth and confidence PFM (4 + 4 bytes) and two PNG previews (about 3)."""
+
+
+def plan_line(scene: Scene, plans, todo: list[int], config: ReconstructConfig) -> str:
+    """What the run is about to do, said before the long steps: views, working size, what is left to compute
+    and the disk the depth maps will take."""
+    working = config.output_resolution == "working"
+    pixels = sum((p.resized_width * p.resized_height) if working else (v.width * v.height)
+                 for v, p in zip(scene.views, plans))
+    size = f"{plans[0].resized_width}x{plans[0].resized_height}"
+    left = (f"all {len(todo)} to compute" if len(todo) == len(scene)
+            else f"{len(todo)} to compute, {len(scene) - len(todo)} done before")
+    disk = pixels * BYTES_PER_OUTPUT_PIXEL
+    return (f"plan: {len(scene)} views at {size} (working resolution), {config.num_views} views per depth map; "
+            f"{left}; the depth maps take about {_size(disk)} on disk"
+            + ("" if config.fusion == "none" else ", plus the fused cloud"))
+
+
+def _size(nbytes: float) -> str:
+    return f"{nbytes / 2**30:.1f} GB" if nbytes >= 2**30 else f"{max(1, round(nbytes / 2**20))} MB"
+
+
 def config_flag(name: str) -> str:
     """The command-line flag of a :class:`ReconstructConfig` field (its ``flag`` metadata, else ``--name-like-this``;
     fields without a flag are named as fields)."""
@@ -532,6 +555,8 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
         return todo
 
     todo = ranks.broadcast(ranks.step(write_scene, only_main=True))
+    if not quiet and ranks.is_main:
+        print(plan_line(scene, plans, todo, config), flush=True)
 
     t1 = time.perf_counter()
     cache_stats = schedule = None
