@@ -29,6 +29,10 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--memory-gb", type=float, metavar="GB",
                    help="memory budget: depth maps are read on demand and cached within it, points are "
                         "written as they are produced (default: half of the free memory)")
+    p.add_argument("--max-size", type=int, metavar="PX",
+                   help="fuse depth maps whose longer side exceeds PX at PX (default: the working resolution a "
+                        "reconstruct run records in config.json, so maps upsampled to large photos fuse at the size "
+                        "they were computed at; 0: at the size they are stored)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
 
@@ -54,10 +58,27 @@ def run(args: argparse.Namespace) -> int:
                         num_consistent=args.num_consistent, num_src_views=args.num_src_views)
     parse_device(args.device)
     out = Path(args.output) if args.output else Path(args.folder) / "fused.ply"
+    if args.max_size is not None and args.max_size != 0 and args.max_size < 16:
+        raise InputError(f"--max-size must be at least 16 pixels (or 0: the stored size), got {args.max_size}")
+    max_size = working_size(Path(args.folder)) if args.max_size is None else (args.max_size or None)
     with claim_output_file(out, b"ply", "PLY"), writing(out):
         fuse(args.folder, out, config, device=args.device, quiet=args.quiet, memory_gb=args.memory_gb,
-             mask_dir=args.mask_dir)
+             mask_dir=args.mask_dir, max_size=max_size)
     return 0
+
+
+def working_size(folder) -> int | None:
+    """The working resolution (longer side) a reconstruct run of ``folder`` computed its depth maps at, when
+    its config.json says so and asks fusion to read them at it (the default), else None."""
+    import json
+
+    try:
+        record = json.loads((folder / "config.json").read_text())
+        size = record["resolved"]["long_side"]
+        wanted = record["config"].get("fusion_resolution", "original")
+    except (OSError, ValueError, KeyError, TypeError, AttributeError):
+        return None
+    return int(size) if wanted == "working" and isinstance(size, int) else None
 
 
 def shipped_weights_conf(folder, method: str) -> float | None:

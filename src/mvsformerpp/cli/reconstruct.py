@@ -54,6 +54,9 @@ def add_run_args(p: argparse.ArgumentParser) -> None:
     g.add_argument("--conf", type=float, metavar="C",
                    help="fusion confidence threshold in [0, 1) (default: the one calibrated for the default weights "
                         "when they run, else the preset's)")
+    g.add_argument("--fusion-resolution", choices=("working", "original"), default=_DEFAULT.fusion_resolution,
+                   help="size of the depth maps fusion reads: the working resolution they were computed at "
+                        "(default; photos larger than it do not multiply points and time), or as written")
     g.add_argument("--mask-dir", metavar="DIR",
                    help="object masks applied before fusion: one per photo, named like it or by view index "
                         "(DTU's mask/000.png and BlendedMVS's *_masked.jpg are recognised)")
@@ -83,7 +86,7 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
         fusion=args.fusion, fusion_conf=args.conf, cache_mb=args.cache_mb, interval_scale=args.interval_scale,
         num_depth=args.num_depth,
         temperatures=tuple(args.temperatures),
-        output_resolution=args.output_resolution, mask_dir=args.mask_dir,
+        output_resolution=args.output_resolution, fusion_resolution=args.fusion_resolution, mask_dir=args.mask_dir,
         sfm=SfMConfig(camera_model=args.camera_model, single_camera=args.single_camera, matcher=args.matcher,
                       max_image_size=args.sfm_max_size),
     )

@@ -54,10 +54,15 @@ class DepthFolder:
     """The depth maps of a scene folder, checked up front and read one view at a time.
 
     With ``mask_dir`` (:mod:`mvsformerpp.io.masks`), depths outside each view's object mask read as 0.
+    With ``max_size``, maps whose longer side exceeds it read at that size (:meth:`_resample`): depth maps
+    upsampled to large photos fuse at the resolution they were computed at.
     """
 
-    def __init__(self, folder: str | Path, mask_dir: str | Path | None = None):
+    def __init__(self, folder: str | Path, mask_dir: str | Path | None = None, max_size: int | None = None):
         self.root = Path(folder)
+        if max_size is not None and max_size < 16:
+            raise InputError(f"--max-size must be at least 16 pixels, got {max_size}")
+        self.max_size = max_size
         self.scene: Scene = load_mvsnet_scene(self.root)
         missing = [p.name for p in map(self.depth_path, range(len(self.scene))) if not p.is_file()]
         if missing:
@@ -85,7 +90,8 @@ class DepthFolder:
     def depth_path(self, i: int) -> Path:
         return self.root / "depth_est" / f"{self.scene.views[i].name}.pfm"
 
-    def depth_shape(self, i: int) -> tuple[int, int]:
+    def stored_shape(self, i: int) -> tuple[int, int]:
+        """(height, width) of view i's depth map file."""
         shape = pfm_shape(self.depth_path(i))
         if len(shape) != 2:
             raise FormatError("depth map must have one channel (Pf)", self.depth_path(i))
@@ -94,7 +100,45 @@ class DepthFolder:
             raise FormatError(f"depth map is {w}x{h}, which is not the shape of its {view.width}x{view.height} photo "
                               "(depth maps may be smaller than the photos, with the same aspect ratio)",
                               self.depth_path(i))
-        return shape
+        return h, w
+
+    def depth_shape(self, i: int) -> tuple[int, int]:
+        """(height, width) view i's maps are read at (the stored size, or less under ``max_size``)."""
+        h, w = self.stored_shape(i)
+        if self.max_size is None or max(h, w) <= self.max_size:
+            return h, w
+        s = self.max_size / max(h, w)
+        return max(1, round(h * s)), max(1, round(w * s))
+
+    def _resample(self, i: int, depth: np.ndarray, conf: np.ndarray | None) -> tuple[np.ndarray, np.ndarray | None]:
+        """Depth (and confidence) at the centres of the smaller grid: interpolated between the four nearest
+        pixels where they lie on one smooth surface (all with depth, within 1 % of each other), else the
+        nearest pixel's (no depth is made up across an edge)."""
+        h, w = self.depth_shape(i)
+        H, W = depth.shape
+        if (h, w) == (H, W):
+            return depth, conf
+        y = np.clip((np.arange(h) + 0.5) * H / h - 0.5, 0, H - 1)
+        x = np.clip((np.arange(w) + 0.5) * W / w - 0.5, 0, W - 1)
+        y0, x0 = np.minimum(y.astype(np.int64), H - 2), np.minimum(x.astype(np.int64), W - 2)
+        fy, fx = (y - y0)[:, None], (x - x0)[None, :]
+
+        def corners(a):
+            return a[y0][:, x0], a[y0][:, x0 + 1], a[y0 + 1][:, x0], a[y0 + 1][:, x0 + 1]
+
+        def blend(c):
+            return (c[0] * (1 - fx) + c[1] * fx) * (1 - fy) + (c[2] * (1 - fx) + c[3] * fx) * fy
+
+        def nearest(a):
+            return a[np.round(y).astype(np.int64)][:, np.round(x).astype(np.int64)]
+
+        d = corners(depth.astype(np.float64))
+        lo, hi = np.minimum.reduce(d), np.maximum.reduce(d)
+        smooth = (lo > 0) & (hi - lo <= 0.01 * lo)
+        out = np.where(smooth, blend(d), nearest(depth)).astype(depth.dtype)
+        if conf is not None:
+            conf = np.where(smooth, blend(corners(conf.astype(np.float64))), nearest(conf)).astype(conf.dtype)
+        return np.ascontiguousarray(out), conf
 
     def read(self, i: int) -> tuple[np.ndarray, np.ndarray | None, np.ndarray]:
         """View i's (depth, confidence or None, image)."""
@@ -103,6 +147,7 @@ class DepthFolder:
         if depth.ndim != 2:
             raise FormatError("depth map must have one channel (Pf)", path)
         conf = _read_confidence(self.confidence_paths[i], depth.shape) if self.has_confidence else None
+        depth, conf = self._resample(i, depth, conf)
         if self.mask_paths is not None:
             from mvsformerpp.io.masks import fit_mask, read_mask
 
@@ -147,21 +192,25 @@ def view_cache_bytes(pixels_per_view: int, num_sources: int, config: FusionConfi
 
 def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
          device: str = "cpu", quiet: bool = False, memory_gb: float | None = None,
-         mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True) -> Path:
+         mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True,
+         max_size: int | None = None) -> Path:
     """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path.
 
     ``memory_gb`` bounds the loaded views and working memory (default: half of the free memory).
     ``mask_dir``: object masks (:mod:`mvsformerpp.io.masks`); depths outside them are dropped before
     fusion. ``normals``: store each point's normal and confidence from its reference view's maps
     (:mod:`mvsformerpp.fusion.normals`). ``explain_empty``: when no point survives, log why and which
-    settings would keep points (trial fusions; parameter sweeps turn this off).
+    settings would keep points (trial fusions; parameter sweeps turn this off). ``max_size``: fuse maps larger
+    than this (longer side, pixels) at this size (:class:`DepthFolder`); None: at their stored size.
     """
-    return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty)["ply"]
+    return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
+                          max_size)["ply"]
 
 
 def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
                    device: str = "cpu", quiet: bool = False, memory_gb: float | None = None,
-                   mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True) -> dict:
+                   mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True,
+                   max_size: int | None = None) -> dict:
     """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
     from mvsformerpp.inference.resolution import available_memory_bytes
 
@@ -170,7 +219,7 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     config = config or FusionConfig()
     if memory_gb is not None and memory_gb <= 0:
         raise InputError(f"--memory-gb must be positive, got {memory_gb}")
-    depths = DepthFolder(folder, mask_dir)
+    depths = DepthFolder(folder, mask_dir, max_size)
     scene = depths.scene
     budget = memory_gb * 2**30 if memory_gb else 0.5 * available_memory_bytes(torch.device(device))
     pixels = max(h * w for h, w in map(depths.depth_shape, range(len(scene))))

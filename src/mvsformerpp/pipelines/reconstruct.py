@@ -78,6 +78,10 @@ class ReconstructConfig:
     fusion_conf: float | None = field(default=None, metadata={"flag": "--conf"})
     """Override of the fusion preset's confidence threshold (``--conf``). None: the threshold calibrated for
     the shipped default weights when they run (:func:`fusion_conf_for`), else the preset's."""
+    fusion_resolution: Literal["working", "original"] = "working"
+    """Size of the depth maps fusion reads: ``working``, the resolution they were computed at (photos larger
+    than it do not multiply the points or the fusion time); ``original``: the maps as written (with
+    ``output_resolution`` original, upsampled to each photo's size)."""
     output_resolution: Literal["original", "working"] = "original"
     """``original``: depth and confidence maps at each photo's size (upsampled from the working
     resolution); ``working``: at the working resolution, with ``images/`` resized and ``cams/`` scaled
@@ -122,7 +126,8 @@ class ReconstructConfig:
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed)."""
         d = dataclasses.asdict(self)
-        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "mask_dir", "sfm"):  # (SfM: cameras)
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_resolution", "mask_dir",
+                  "sfm"):  # (SfM: cameras)
             d.pop(k)
         return d
 
@@ -597,14 +602,16 @@ def _reconstruct(input_path, out_dir, config: ReconstructConfig, quiet: bool, mo
         ply = folder.root / "fused.ply"
         points = None
         if config.fusion != "none":
+            fusion_size = long_side if config.fusion_resolution == "working" else None
             fusion_state = settings_hash({"depth": keys, "fusion": config.fusion, "conf": fusion_conf,
+                                          **({"max_size": fusion_size} if fusion_size else {}),
                                           **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir
                                              else {})})
             timings["fusion_reused"] = folder.fusion_done(fusion_state)
             if not timings["fusion_reused"]:
                 with disk_full_guard(ply):
                     _run_fusion(folder.root, ply, config.fusion, quiet, config.memory_gb, fusion_conf,
-                                config.mask_dir)
+                                config.mask_dir, fusion_size)
                 folder.mark_fusion(fusion_state)
             from mvsformerpp.io.ply import ply_vertex_count
 
@@ -681,7 +688,8 @@ def _fusion_config(name: str, conf: float | None = None):
 
 
 def _run_fusion(folder: Path, ply: Path, name: str, quiet: bool, memory_gb: float | None = None,
-                conf: float | None = None, mask_dir: str | None = None) -> None:
+                conf: float | None = None, mask_dir: str | None = None, max_size: int | None = None) -> None:
     from mvsformerpp.pipelines.fuse import fuse
 
-    fuse(folder, ply, _fusion_config(name, conf), quiet=quiet, memory_gb=memory_gb, mask_dir=mask_dir)
+    fuse(folder, ply, _fusion_config(name, conf), quiet=quiet, memory_gb=memory_gb, mask_dir=mask_dir,
+         max_size=max_size)
