@@ -19,7 +19,7 @@ from mvsformerpp.geometry.camera import (
 from mvsformerpp.geometry.warping import homography_warp, projection_4x4
 from mvsformerpp.io.mvsnet import read_cam
 from mvsformerpp.io.pfm import read_pfm
-from mvsformerpp.synth.render import random_scene, render_view
+from mvsformerpp.synth import random_scene, render_view
 
 DTU = Path(__file__).parents[1] / "data" / "dtu_pair"
 

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from mvsformerpp.synth import photos
+from mvsformerpp.synth import photos, random_scene, render_view
 from mvsformerpp.synth.layouts import LAYOUTS, heldout_scene, training_scene
-from mvsformerpp.synth.render import cast, random_scene, render_view
+from mvsformerpp.synth.render import cast
 from mvsformerpp.synth.shapes import Box, Cylinder, Ellipsoid, Rect, Sphere, may_hit
 
 

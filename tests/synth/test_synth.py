@@ -38,7 +38,8 @@ def test_gt_depth_reprojects_exactly_into_neighbours(scene_dir):
     u, v, z = project(t(v1.K), t(v1.extrinsic), pts)
     # Points that land exactly on a pixel centre of view 1 are rare, so compare at view 1's pixel
     # centres by ray casting the same scene: re-render view 1's depth at the projected coordinates.
-    from mvsformerpp.synth.render import cast, random_scene
+    from mvsformerpp.synth import random_scene
+    from mvsformerpp.synth.render import cast
 
     synth = random_scene(3, 5, 96, 128)
     cam = synth.cameras[1]

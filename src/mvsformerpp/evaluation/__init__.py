@@ -29,7 +29,7 @@ from mvsformerpp.evaluation.dtu import (
 )
 from mvsformerpp.evaluation.eth3d import ETH3D_TOLERANCES, ETH3DRow, evaluate_eth3d, evaluate_eth3d_points
 from mvsformerpp.evaluation.icp import icp_refine
-from mvsformerpp.evaluation.thinning import thin_points
+from mvsformerpp.evaluation.thinning import thin_points, voxel_downsample
 from mvsformerpp.evaluation.tnt import (
     TNT_THRESHOLDS,
     CropVolume,
@@ -37,7 +37,6 @@ from mvsformerpp.evaluation.tnt import (
     evaluate_tnt,
     evaluate_tnt_points,
     load_crop_volume,
-    voxel_downsample,
 )
 from mvsformerpp.evaluation.tnt_submission import package_tnt_submission, read_log, write_log
 from mvsformerpp.evaluation.visualize import error_colors, plot_per_scan, plot_pr_curves, write_error_ply

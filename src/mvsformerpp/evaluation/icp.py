@@ -23,6 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvsformerpp.evaluation.distances import build_tree
+from mvsformerpp.evaluation.thinning import voxel_downsample
 
 MAX_POINTS = 4_000_000
 """Above this many points a cloud is subsampled uniformly (every k-th point) in the last round."""
@@ -102,11 +103,9 @@ def icp_refine(source: np.ndarray, target: np.ndarray, tau: float, init: np.ndar
 
     Runs the rounds of ``schedule`` (distances in units of ``tau``), each on the source moved by the
     transform so far and the target, both cropped by ``crop`` (a boolean mask function) when given and
-    downsampled as the round says (:func:`mvsformerpp.evaluation.tnt.voxel_downsample`). Returns the
+    downsampled as the round says (:func:`mvsformerpp.evaluation.thinning.voxel_downsample`). Returns the
     refined 4x4 similarity transform.
     """
-    from mvsformerpp.evaluation.tnt import voxel_downsample
-
     T = np.eye(4) if init is None else np.asarray(init, dtype=np.float64).copy()
     for rnd in schedule:
         moved = source @ T[:3, :3].T + T[:3, 3]

@@ -1,4 +1,5 @@
-"""Deterministic minimum-spacing thinning of a point cloud (the DTU protocol's ``reducePts_haa``).
+"""Reductions of a point cloud: deterministic minimum-spacing thinning (the DTU protocol's ``reducePts_haa``)
+and voxel downsampling (Tanks and Temples, ICP).
 
 The official DTU MATLAB evaluation reduces the prediction so that no two kept points are closer
 than ``dst`` (0.2 mm): it visits the points in an order, keeps a point unless an earlier kept point
@@ -46,3 +47,21 @@ def thin_points(points: np.ndarray, min_dist: float, seed: int | None = None, ch
             for j in nb:
                 removed[j] = 1
     return keep
+
+
+def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
+    """Open3D-style voxel downsampling: the mean of the points in each occupied voxel.
+
+    The grid starts at ``points.min(0) - voxel/2``; output rows are sorted by voxel index, so the
+    result does not depend on the input order. Returns [V,3].
+    """
+    if not voxel > 0:
+        raise ValueError(f"voxel size must be positive, got {voxel}")
+    origin = points.min(axis=0) - voxel / 2
+    idx = np.floor((points - origin) / voxel).astype(np.int64)
+    _, inverse, counts = np.unique(idx, axis=0, return_inverse=True, return_counts=True)
+    inverse = inverse.ravel()
+    sums = np.zeros((len(counts), 3))
+    for c in range(3):
+        sums[:, c] = np.bincount(inverse, weights=points[:, c], minlength=len(counts))
+    return sums / counts[:, None]

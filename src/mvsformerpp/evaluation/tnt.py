@@ -27,6 +27,7 @@ from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.evaluation.cloud import CloudDistances, CloudMetrics, cloud_distances
 from mvsformerpp.evaluation.distances import check_points, load_cloud
 from mvsformerpp.evaluation.icp import icp_refine
+from mvsformerpp.evaluation.thinning import voxel_downsample
 
 #: The official per-scene thresholds (metres), training and intermediate/advanced scenes.
 TNT_THRESHOLDS: dict[str, float] = {
@@ -102,24 +103,6 @@ def load_alignment(path: str | Path) -> np.ndarray:
 def apply_transform(points: np.ndarray, transform: np.ndarray) -> np.ndarray:
     """points [N,3] -> ``(T @ [X,1])[:3]`` for a 4x4 (similarity or rigid) ``transform``."""
     return points @ transform[:3, :3].T + transform[:3, 3]
-
-
-def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
-    """Open3D-style voxel downsampling: the mean of the points in each occupied voxel.
-
-    The grid starts at ``points.min(0) - voxel/2``; output rows are sorted by voxel index, so the
-    result does not depend on the input order. Returns [V,3].
-    """
-    if not voxel > 0:
-        raise ValueError(f"voxel size must be positive, got {voxel}")
-    origin = points.min(axis=0) - voxel / 2
-    idx = np.floor((points - origin) / voxel).astype(np.int64)
-    _, inverse, counts = np.unique(idx, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    sums = np.zeros((len(counts), 3))
-    for c in range(3):
-        sums[:, c] = np.bincount(inverse, weights=points[:, c], minlength=len(counts))
-    return sums / counts[:, None]
 
 
 @dataclass(frozen=True)

@@ -12,7 +12,8 @@ from mvsformerpp.errors import InputError
 from mvsformerpp.io.mvsnet import MVSNetCam, write_cam, write_pair
 from mvsformerpp.io.pfm import write_pfm
 from mvsformerpp.io.ply import write_ply
-from mvsformerpp.synth.render import centred_window, random_scene, render_view, sensor_depth_range, sensor_points
+from mvsformerpp.synth.render import centred_window, render_view, sensor_depth_range, sensor_points
+from mvsformerpp.synth.scenes import random_scene
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 
 
