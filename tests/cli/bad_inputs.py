@@ -526,7 +526,9 @@ Other failures the suite provokes, beyond one-line messages:
   an unrestricted load, then refused without running (`tests/models/test_checkpoint.py`).
 - Inputs that used to be misread are now read as meant: 32-bit float TIFF photos (intensities in [0, 1]),
   masks with an alpha channel, text files saved with a UTF-8 byte order mark (`tests/io/`); `--views`
-  beyond the scene's images is capped at them, with a warning (`tests/pipelines/test_reconstruct.py`).
+  beyond the scene's images is capped at them, with a warning (`tests/pipelines/test_reconstruct.py`); a
+  folder name holding bytes that are not UTF-8 is written and printed back as those bytes
+  (`tests/viewer/test_report.py`).
 - Resume after editing one depth line, one `pair.txt` line or one photo recomputes exactly the views
   that depend on it (`tests/pipelines/test_resume_validity.py`).
 

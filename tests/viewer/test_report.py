@@ -174,3 +174,19 @@ def test_a_run_again_says_what_it_reused(tmp_path, capsys, fake_network):
     printed = capsys.readouterr().out
     assert "(0 views computed, 3 reused)" in printed and "fusion reused" in printed
     assert "3 reused" in (out / "report.html").read_text()
+
+
+def test_a_folder_name_that_is_not_utf8_is_reported(synth_run, tmp_path):
+    """Linux allows any bytes in a name; the report (and every text file, and what is printed) keeps them
+    instead of crashing."""
+    import os
+    import subprocess
+    import sys
+
+    out = tmp_path / os.fsdecode(b"run\xff")
+    shutil.copytree(synth_run, out)
+    run = subprocess.run([sys.executable, "-m", "mvsformerpp", "report", os.fsencode(str(out))], capture_output=True,
+                         env={**os.environ, "LC_ALL": "C.UTF-8", "PYTHONIOENCODING": "utf-8"})
+    assert run.returncode == 0, run.stderr.decode(errors="replace")
+    assert os.fsencode(str(out / "report.html")) in run.stdout
+    assert os.fsencode(str(out)) in (out / "report.html").read_bytes()

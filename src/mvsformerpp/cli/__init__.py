@@ -54,8 +54,17 @@ def _show_warnings() -> None:
         logger.addHandler(_WarningLines(logging.WARNING))
 
 
+def _print_any_name() -> None:
+    """File names may hold bytes that are not UTF-8 (Python reads them as surrogates): print them back as
+    those bytes instead of failing after the work is done."""
+    for stream in (sys.stdout, sys.stderr):
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="surrogateescape")
+
+
 def main(argv: list[str] | None = None) -> int:
     _show_warnings()
+    _print_any_name()
     parser = build_parser()
     args = parser.parse_args(argv)
     if not getattr(args, "func", None):

@@ -56,4 +56,6 @@ def atomic_write_bytes(path: str | Path, data: bytes) -> None:
 
 
 def atomic_write_text(path: str | Path, text: str) -> None:
-    atomic_write_bytes(path, text.encode("utf-8"))
+    """Write ``text`` as UTF-8; a file name with bytes that are not UTF-8 (read as surrogates, as Python reads
+    such names) is written back as those bytes, never an error."""
+    atomic_write_bytes(path, text.encode("utf-8", "surrogateescape"))
