@@ -6,7 +6,8 @@ Each weights file (a ``lite`` safetensors checkpoint, or ``shipped`` for the wei
 scored on the first ``--samples`` validation samples of each recipe (default: the phase-2 recipe's whole
 small photos and the phase-3 recipe's windows of high-resolution photos), with the recipe's validation
 size: per-stage cross-entropy (chance: ln 32, ln 16, ln 8, ln 4), abs_rel, and per stage the share of
-pixels whose depth lies within one of that stage's plane spacings of the truth (:func:`stage_scores`).
+pixels whose depth lies within one of that stage's plane spacings of the truth, and the share whose
+truth lies inside the stage's hypothesis window at all (:func:`stage_scores`).
 This is the experiment of the model card: the fine stages (3 and 4) learn only where neighbouring depth
 planes are far enough apart in the image.
 """
@@ -50,9 +51,10 @@ def main() -> None:
     recipes = _pairs(args.recipe, "--recipe") if args.recipe else {k: str(v) for k, v in RECIPES.items()}
     device = torch.device("cpu")
     chance = [math.log(n) for n in (32, 16, 8, 4)]
-    print(f"{'':49s} {'cross-entropy of stage':>35s} {'':8s} {'share within one plane at stage':>35s}")
+    print(f"{'':49s} {'cross-entropy of stage':>35s} {'':8s} {'share within one plane at stage':>35s} "
+          f"{'share whose truth is in the window':>35s}")
     print(f"{'weights':24s} {'views':24s} " + " ".join(f"{s:>8d}" for s in range(1, 5)) + f" {'abs_rel':>8s} "
-          + " ".join(f"{s:>8d}" for s in range(1, 5)))
+          + " ".join(f"{s:>8d}" for s in range(1, 5)) + " " + " ".join(f"{s:>8d}" for s in range(1, 5)))
     print(f"{'(chance)':24s} {'':24s} " + " ".join(f"{c:8.3f}" for c in chance))
     for wname, path in weights.items():
         model = load_shipped() if path == "shipped" else load_model(path)
@@ -60,9 +62,10 @@ def main() -> None:
         for rname, recipe in recipes.items():
             config = dataclasses.replace(load_config(recipe), val_samples=args.samples)
             _, val = build_datasets(config)
-            ce, rel, resolved = stage_scores(model, val, config, device)
+            ce, rel, resolved, inside = stage_scores(model, val, config, device)
             print(f"{wname:24s} {rname:24s} " + " ".join(f"{v:8.3f}" for v in ce)
-                  + f" {rel:8.4f} " + " ".join(f"{100 * r:7.1f}%" for r in resolved), flush=True)
+                  + f" {rel:8.4f} " + " ".join(f"{100 * r:7.1f}%" for r in resolved)
+                  + " " + " ".join(f"{100 * r:7.1f}%" for r in inside), flush=True)
 
 
 def stage_scores(model, dataset, config, device):
@@ -83,7 +86,7 @@ def stage_scores(model, dataset, config, device):
 
     model.prepare_for_inference()
     h, w = config.val_height or config.height, config.val_width or config.width
-    hits, total, ce, rel = np.zeros(4), np.zeros(4), [], []
+    hits, inside, total, ce, rel = np.zeros(4), np.zeros(4), np.zeros(4), [], []
     with torch.no_grad():
         for i in range(min(config.val_samples, len(dataset))):
             batch = _to(collate([dataset[SampleKey(i, h, w, 0)]]), device)
@@ -98,8 +101,14 @@ def stage_scores(model, dataset, config, device):
                 step = (1 / o["depth_values"][:, 1] - 1 / o["depth_values"][:, 0]).abs()
                 err = (1 / o["depth"].float() - 1 / gt.clamp(min=1e-6)).abs()
                 hits[s] += float((err[valid] < step[valid]).float().sum())
+                d = o["depth_values"]  # the stage's window, as the loss bins it (half a gap beyond each end)
+                near, far = d.min(dim=1).values, d.max(dim=1).values
+                half = (d[:, 1] - d[:, 0]).abs() / 2
+                within = (gt >= near - half) & (gt <= far + half)
+                inside[s] += float(within[valid].float().sum())
                 total[s] += int(valid.sum())
-    return np.mean(ce, 0), float(np.mean(rel)), list(hits / np.maximum(total, 1))
+    n = np.maximum(total, 1)
+    return np.mean(ce, 0), float(np.mean(rel)), list(hits / n), list(inside / n)
 
 
 if __name__ == "__main__":

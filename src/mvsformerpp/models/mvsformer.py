@@ -89,7 +89,7 @@ class MVSFormerPP(nn.Module):
 
     def forward(self, imgs: torch.Tensor, proj_matrices: dict, depth_values: torch.Tensor,
                 temperatures=None, image_features: ImageFeatures | None = None,
-                release_features: bool = False) -> dict:
+                release_features: bool = False, window_guide: dict | None = None) -> dict:
         """Run the cascade.
 
         Args:
@@ -105,6 +105,11 @@ class MVSFormerPP(nn.Module):
             release_features: empty ``image_features`` (see :meth:`ImageFeatures.release`) once the
                 views are decoded, so that its maps do not stay in memory for the rest of the cascade;
                 for callers that built it for this call only.
+            window_guide: training only: {"stage1".."stage3": (depth [B,h,w], jitter [B,h,w])}. Where a
+                depth is given (> 0), the next stage's window is centred on it, moved by ``jitter`` (in
+                [-1, 1]) times that stage's inverse-depth plane step, instead of on the stage's own
+                estimate, so that the truth lies inside the finer stages' windows (see
+                ``TrainConfig.window_guide``). None: the reference's cascade.
         Returns:
             {"stage1".."stage4": {"depth" [B,h,w], "photometric_confidence" [B,h,w],
             "prob_volume_pre" [B,D,h,w] logits, "depth_values" [B,D,h,w] hypotheses},
@@ -114,9 +119,11 @@ class MVSFormerPP(nn.Module):
         if H % 32 or W % 32:
             raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
         with inference.session(self):
-            return self._forward(imgs, proj_matrices, depth_values, temperatures, image_features, release_features)
+            return self._forward(imgs, proj_matrices, depth_values, temperatures, image_features, release_features,
+                                 window_guide)
 
-    def _forward(self, imgs, proj_matrices, depth_values, temperatures, image_features, release_features) -> dict:
+    def _forward(self, imgs, proj_matrices, depth_values, temperatures, image_features, release_features,
+                 window_guide=None) -> dict:
         B, V, _, H, W = imgs.shape
         cfg = self.config
         own = image_features is None
@@ -142,7 +149,10 @@ class MVSFormerPP(nn.Module):
                 coords = frustum_coordinates(proj[:, 0, 1, :3, :3], hyp, dmin_all, dmax_all)
             else:
                 min_inv = 0.1 / depth_values[:, -1].float()
-                hyp = refined_hypotheses(prev["depth"].detach(), prev["depth_values"], cfg.num_hypotheses[s],
+                centre = prev["depth"].detach()
+                if window_guide is not None and f"stage{s}" in window_guide:
+                    centre = _guided_centre(centre, prev["depth_values"], *window_guide[f"stage{s}"], min_inv)
+                hyp = refined_hypotheses(centre, prev["depth_values"], cfg.num_hypotheses[s],
                                          cfg.hypothesis_ratio[s], h, w, min_inverse=min_inv)
                 coords = None
             volume = stage.cost_volume(feat, proj, hyp)
@@ -157,6 +167,15 @@ class MVSFormerPP(nn.Module):
         outputs["depth"] = prev["depth"]
         outputs["photometric_confidence"] = conf_sum / len(self.fusions)
         return outputs
+
+
+def _guided_centre(estimate: torch.Tensor, prev_hypotheses: torch.Tensor, depth: torch.Tensor, jitter: torch.Tensor,
+                   min_inverse: torch.Tensor) -> torch.Tensor:
+    """The window centre of a guided training sample: ``depth`` (where > 0) moved by ``jitter`` plane steps
+    of the previous stage in inverse depth (the step :func:`refined_hypotheses` measures), else ``estimate``."""
+    step = (1.0 / prev_hypotheses[:, 2] - 1.0 / prev_hypotheses[:, 1]).abs()
+    inv = (1.0 / depth.clamp(min=1e-6) + jitter * step).clamp(min=min_inverse[:, None, None])
+    return torch.where(depth > 0, 1.0 / inv, estimate)
 
 
 def build_model(preset: str = "paper", **overrides) -> MVSFormerPP:

@@ -122,6 +122,11 @@ class TrainConfig:
     """Optimiser steps of the run; None: epochs x batches per epoch."""
     loss_weights: tuple[float, float, float, float] | None = None
     """Per-stage weights of the cross-entropy loss; None: the preset's ``loss_weights``."""
+    window_guide: float = 0.0
+    """Share of the training samples whose stages 2-4 search around the true depth (moved by up to one plane
+    of the stage before, at random) instead of the previous stage's estimate: the truth then lies inside
+    every fine stage's window, so they train on all pixels, not only where the coarser stages were right
+    (0: the reference's training)."""
     grad_clip: float | None = None
     """Clip the gradient norm at this value (None: no clipping, as the reference)."""
     max_bad_steps: int = 20
@@ -340,6 +345,7 @@ def check_config(config: TrainConfig) -> TrainConfig:
     number("interval_scale", 0.0, low_open=True)
     number("resize_min_scale", 0.0, 1.0, low_open=True)
     number("synthetic_render_scale", 1.0, 4.0)
+    number("window_guide", 0.0, 1.0)
     for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "seed"):
         if getattr(config, name) < 0:
             raise InputError(f"{name} must be >= 0, got {getattr(config, name)} (--set {name}=...)")

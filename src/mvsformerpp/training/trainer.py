@@ -235,7 +235,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
             for batch in loader:
                 micro = micro_batch_for(config, batch["imgs"].shape[-2], per_rank)
                 loss_vec, bad = _train_step(ddp_model, opt, scaler, batch, micro, per_rank, loss_weights, config,
-                                            device, info)
+                                            device, info, step)
                 lr = opt.param_groups[0]["lr"]
                 with warnings.catch_warnings():  # a skipped step still advances the schedule
                     warnings.filterwarnings("ignore", message=re.escape("Detected call of `lr_scheduler.step()`"))
@@ -277,10 +277,29 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
             "checkpoint": str(ckpt_dir / "last.safetensors")}
 
 
+def window_guide(chunk: dict, fraction: float, generator: torch.Generator) -> dict | None:
+    """The ``window_guide`` of :meth:`MVSFormerPP.forward` for a training chunk: each sample guided with
+    probability ``fraction``, on its valid ground truth, with uniform jitter in [-1, 1] planes (None: none)."""
+    if fraction <= 0:
+        return None
+    B = chunk["imgs"].shape[0]
+    picked = torch.rand(B, generator=generator) < fraction
+    if not picked.any():
+        return None
+    guide = {}
+    for s in (1, 2, 3):
+        gt, mask = chunk["depth_gt"][f"stage{s}"], chunk["mask"][f"stage{s}"] > 0.5
+        keep = picked.to(gt.device)[:, None, None] & mask & (gt > 0)
+        jitter = (torch.rand(gt.shape, generator=generator) * 2 - 1).to(gt.device, gt.dtype)
+        guide[f"stage{s}"] = (torch.where(keep, gt, torch.zeros_like(gt)), jitter)
+    return guide
+
+
 def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weights, config: TrainConfig,
-                device: torch.device, info: D.DistInfo):
+                device: torch.device, info: D.DistInfo, step: int = 0):
     """One optimiser step over this process's batch; returns ([total, stage1..4] losses, skipped)."""
     opt.zero_grad(set_to_none=True)
+    guides = torch.Generator().manual_seed(config.seed * 1_000_003 + step * 101 + info.rank)
     n = batch["imgs"].shape[0]
     chunks = [(a, min(a + micro, n)) for a in range(0, n, micro)]
     loss_vec = torch.zeros(5, dtype=torch.float64)
@@ -290,7 +309,9 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
         sync = i == len(chunks) - 1 or not info.enabled
         with contextlib.nullcontext() if sync else model.no_sync():
             with _autocast(device, config.precision):
-                out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"])
+                guide = window_guide(chunk, config.window_guide, guides)
+                out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"],
+                            **({"window_guide": guide} if guide is not None else {}))
             loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
             share = (b - a) / per_rank
             finite = bool(torch.isfinite(loss))
