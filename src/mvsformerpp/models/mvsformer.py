@@ -107,8 +107,8 @@ class MVSFormerPP(nn.Module):
                 for callers that built it for this call only.
             window_guide: training only: {"stage1".."stage3": (depth [B,h,w], jitter [B,h,w])}. Where a
                 depth is given (> 0), the next stage's window is centred on it, moved by ``jitter`` (in
-                [-1, 1]) times that stage's inverse-depth plane step, instead of on the stage's own
-                estimate, so that the truth lies inside the finer stages' windows (see
+                [-1, 1]) times the window's half-width, instead of on the stage's own estimate, so that
+                the truth lies inside the finer stages' windows (see
                 ``TrainConfig.window_guide``). None: the reference's cascade.
         Returns:
             {"stage1".."stage4": {"depth" [B,h,w], "photometric_confidence" [B,h,w],
@@ -151,7 +151,8 @@ class MVSFormerPP(nn.Module):
                 min_inv = 0.1 / depth_values[:, -1].float()
                 centre = prev["depth"].detach()
                 if window_guide is not None and f"stage{s}" in window_guide:
-                    centre = _guided_centre(centre, prev["depth_values"], *window_guide[f"stage{s}"], min_inv)
+                    centre = _guided_centre(centre, prev["depth_values"], *window_guide[f"stage{s}"], min_inv,
+                                            cfg.hypothesis_ratio[s])
                 hyp = refined_hypotheses(centre, prev["depth_values"], cfg.num_hypotheses[s],
                                          cfg.hypothesis_ratio[s], h, w, min_inverse=min_inv)
                 coords = None
@@ -170,11 +171,13 @@ class MVSFormerPP(nn.Module):
 
 
 def _guided_centre(estimate: torch.Tensor, prev_hypotheses: torch.Tensor, depth: torch.Tensor, jitter: torch.Tensor,
-                   min_inverse: torch.Tensor) -> torch.Tensor:
-    """The window centre of a guided training sample: ``depth`` (where > 0) moved by ``jitter`` plane steps
-    of the previous stage in inverse depth (the step :func:`refined_hypotheses` measures), else ``estimate``."""
+                   min_inverse: torch.Tensor, ratio: float) -> torch.Tensor:
+    """The window centre of a guided training sample: ``depth`` (where > 0) moved by ``jitter`` times the
+    window's half-width (``ratio`` plane steps of the previous stage in inverse depth, the step
+    :func:`refined_hypotheses` measures), so the truth falls anywhere in the window as it does when the
+    previous stage is nearly right, not always near its middle; else ``estimate``."""
     step = (1.0 / prev_hypotheses[:, 2] - 1.0 / prev_hypotheses[:, 1]).abs()
-    inv = (1.0 / depth.clamp(min=1e-6) + jitter * step).clamp(min=min_inverse[:, None, None])
+    inv = (1.0 / depth.clamp(min=1e-6) + jitter * ratio * step).clamp(min=min_inverse[:, None, None])
     return torch.where(depth > 0, 1.0 / inv, estimate)
 
 

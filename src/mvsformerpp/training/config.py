@@ -123,10 +123,10 @@ class TrainConfig:
     loss_weights: tuple[float, float, float, float] | None = None
     """Per-stage weights of the cross-entropy loss; None: the preset's ``loss_weights``."""
     window_guide: float = 0.0
-    """Share of the training samples whose stages 2-4 search around the true depth (moved by up to one plane
-    of the stage before, at random) instead of the previous stage's estimate: the truth then lies inside
-    every fine stage's window, so they train on all pixels, not only where the coarser stages were right
-    (0: the reference's training)."""
+    """Share of the training samples whose stages 2-4 search around the true depth (the window moved at random
+    by up to its half-width) instead of the previous stage's estimate: the truth then lies inside every fine
+    stage's window, so they train on all pixels, not only where the coarser stages were right (0: the
+    reference's training)."""
     grad_clip: float | None = None
     """Clip the gradient norm at this value (None: no clipping, as the reference)."""
     max_bad_steps: int = 20
