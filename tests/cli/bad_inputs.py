@@ -266,6 +266,23 @@ def _export_over_user_folder(d: Path) -> list[str]:
     return ["export", str(out), "--to", "colmap", str(d / "mine"), "--overwrite", "--quiet"]
 
 
+def _recipe_in_run_folder(d: Path) -> list[str]:
+    (d / "exp").mkdir()
+    (d / "exp" / "config.yaml").write_text("# my recipe\nrecipe: synthetic\nmax_steps: 1\n")
+    return ["train", str(d / "exp" / "config.yaml"), "-o", str(d / "exp")]
+
+
+def _short_par_line(d: Path) -> list[str]:
+    (d / "m").mkdir()
+    (d / "m" / "x_par.txt").write_text("1\na.png " + " ".join(["1"] * 20) + "\n")
+    return recon(d, src=d / "m")
+
+
+_TINY_TRAIN = ["--max-steps", "1", "--batch-size", "1", "--height", "32", "--width", "32", "--views", "2", "--set",
+               "val_samples=1", "--set", "synthetic_views_per_scene=2", "--set", "progress=false", "--set",
+               "tensorboard=false", "--set", "val_every=0"]
+
+
 CASES: list[Case] = [
     # reconstruct: the input
     Case("recon-missing-input", "INPUT does not exist", lambda d: recon(d, src=d / "nowhere"), "no such file"),
@@ -455,6 +472,18 @@ CASES: list[Case] = [
     Case("train-parallax-outside", "a recipe whose views fall outside its declared parallax_range",
          lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "parallax_range=[30, 60]",
                     "--set", "parallax_samples=2", "--height", "64", "--width", "96"], "parallax_range"),
+    Case("train-output-holds-recipe", "train exp/config.yaml -o exp (the run folder holds the recipe)",
+         _recipe_in_run_folder, "holds the input"),
+    Case("train-output-user-folder", "train -o a folder of the user's own files",
+         lambda d: (lambda f: ["train", "synthetic", "-o", str(f)])(_file(d, "notes.txt").parent), "train"),
+    Case("train-first-save-disk-full", "the disk fills up at training's first checkpoint",
+         lambda d: ["train", "synthetic", "-o", str(d / "run"), *_TINY_TRAIN], "without --resume",
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.training.checkpoints", "atomic_write_bytes")),
+    Case("export-disk-full", "the disk fills up while export writes the workspace",
+         lambda d: ["export", str(fused_folder(d)), "--to", "colmap", str(d / "ws"), "--quiet"], "No space left",
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.utils.atomic", "os.fsync")),
+    Case("recon-par-short-line", "a Middlebury par line with 20 numbers instead of 21", _short_par_line,
+         "21 numbers"),
     Case("info-missing", "info on a path that does not exist", lambda d: ["info", str(d / "nowhere")],
          "no such file"),
     Case("info-depth-range-reversed", "info --depth-range 5 1",

@@ -120,4 +120,4 @@ def test_every_recipe_trains_on_the_best_device_present(capsys):
     info = init_distributed("auto")
     expect = "cuda" if torch.cuda.is_available() else "cpu"
     assert info.device.type == expect
-    assert f"train: device {expect} (--device auto" in capsys.readouterr().err
+    assert f"train: device {expect} (--device auto" in capsys.readouterr().out

@@ -25,7 +25,7 @@ def test_guided_windows_hold_the_truth_and_leave_inference_alone():
         gt, mask = batch["depth_gt"][f"stage{s}"], batch["mask"][f"stage{s}"] > 0.5
         valid = mask & (gt > 0)
 
-        def inside(out):
+        def inside(out, s=s, gt=gt, valid=valid):
             d = out[f"stage{s}"]["depth_values"]
             half = (d[:, 1] - d[:, 0]).abs() / 2
             ok = (gt >= d.min(1).values - half) & (gt <= d.max(1).values + half)

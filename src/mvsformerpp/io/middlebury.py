@@ -51,8 +51,8 @@ def read_par(path: str | Path) -> list[tuple[str, np.ndarray, np.ndarray, np.nda
     out = []
     for n, tok in enumerate(lines[1:], start=2):
         if len(tok) != 22:
-            raise FormatError(f"line {n}: expected an image name and 21 numbers (K, R, t), found {len(tok)} fields",
-                              path)
+            found = f"a name and {len(tok) - 1} numbers" if tok else "an empty line"
+            raise FormatError(f"line {n}: expected an image name and 21 numbers (K, R, t), found {found}", path)
         try:
             vals = np.array([float(x) for x in tok[1:]])
         except ValueError as e:

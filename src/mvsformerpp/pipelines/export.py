@@ -87,8 +87,10 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
         if target.exists():
             shutil.rmtree(target) if target.is_dir() else target.unlink()
         os.replace(tmp, target)
-    except BaseException:
+    except BaseException as e:
         shutil.rmtree(tmp, ignore_errors=True)
+        if isinstance(e, OSError) and e.filename and str(tmp) in str(e.filename):
+            e.filename = str(target)  # not the temporary folder, which is gone
         raise
     if not quiet:
         print(f"COLMAP workspace with {len(names)} images -> {target}\n"

@@ -9,7 +9,6 @@ own batch statistics). Without torchrun everything here is a no-op for one proce
 from __future__ import annotations
 
 import os
-import sys
 from dataclasses import dataclass
 
 import torch
@@ -34,14 +33,14 @@ class DistInfo:
 
 def init_distributed(device: str) -> DistInfo:
     """Join the torchrun process group if there is one; the device of this process (``auto``: CUDA when
-    there is a CUDA device, else the CPU, said on stderr)."""
+    there is a CUDA device, else the CPU, said on stdout)."""
     world = int(os.environ.get("WORLD_SIZE", "1"))
     rank, local = int(os.environ.get("RANK", "0")), int(os.environ.get("LOCAL_RANK", "0"))
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
         if rank == 0:
             found = "a CUDA device is" if device == "cuda" else "no CUDA device"
-            print(f"train: device {device} (--device auto: {found} available)", file=sys.stderr, flush=True)
+            print(f"train: device {device} (--device auto: {found} available)", flush=True)
     if device == "cuda":
         if not torch.cuda.is_available():
             from mvsformerpp.errors import InputError
