@@ -29,7 +29,7 @@ def test_working_resolution_outputs_fuse_onto_the_plane(tmp_path):
     clouds = {}
     for mode in ("working", "original"):
         cfg = ReconstructConfig(preset="lite", max_size=64, num_views=3, cache_mb=16, fusion="normal",
-                                output_resolution=mode)
+                                output_resolution=mode, fusion_resolution="original")  # fuse the maps as written
         out = tmp_path / mode
         summary = reconstruct(scene, out, cfg, quiet=True, model=plane_model())
         h, w = (48, 64) if mode == "working" else (96, 128)
@@ -45,3 +45,10 @@ def test_working_resolution_outputs_fuse_onto_the_plane(tmp_path):
     # No resampling at the working resolution: the fused points sit on the plane to float precision;
     # the original-size maps are bilinear upsamplings of a (nearly linear) plane depth.
     assert clouds["working"].max() < 1e-4 and clouds["original"].max() < 1e-2
+    # by default, maps written at the photos' size fuse at the working size: about the working run's points
+    cfg = ReconstructConfig(preset="lite", max_size=64, num_views=3, cache_mb=16, fusion="normal")
+    summary = reconstruct(scene, tmp_path / "default", cfg, quiet=True, model=plane_model())
+    working = len(ply_points(read_ply(tmp_path / "working" / "fused.ply")))
+    assert abs(summary["points"] - working) <= 0.1 * working
+    pts = ply_points(read_ply(tmp_path / "default" / "fused.ply"))
+    assert np.abs(pts[:, 2] - 10.0 - 0.05 * pts[:, 0]).max() < 1e-2
