@@ -5,6 +5,8 @@
 # safetensors, scipy, scikit-image, pyyaml, pillow and tqdm: no install step, run from a checkout.
 #   tools/train_gpu.sh OUT_DIR [STEPS] [SECONDS]   # defaults: 1200 steps, stop after 540 s in any case
 #   tools/train_gpu.sh --dry-run OUT_DIR            # the same script on the CPU: 4 steps at 64x96
+# GUIDE=P sets window_guide (default 0.5: half the samples search their fine stages around the true depth,
+# the next experiment of docs/model-card.md; GUIDE=0 is phase 3's recipe as it is).
 # Then, on any machine: python bench/eval_default_model.py --checkpoint OUT_DIR/weights/*.safetensors
 # --calibrate --json quality.json; python tools/ship_default_weights.py ... (docs/model-card.md).
 set -euo pipefail
@@ -26,6 +28,7 @@ else
     ARGS=(--device cuda --precision bf16 --max-steps "$STEPS" --batch-size 16 --set lr=0.001
           --set "num_workers=$WORKERS" --set val_every=200 --set save_every=100)
 fi
+ARGS+=(--set "window_guide=${GUIDE:-0.5}")
 RESUME=()
 if [[ -f "$RUN/checkpoints/last.state.pt" ]]; then RESUME=(--resume); fi
 "$PY" -c "import torch; print('torch', torch.__version__, '|', torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU')"
