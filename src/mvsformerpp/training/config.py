@@ -323,6 +323,9 @@ def check_config(config: TrainConfig) -> TrainConfig:
         if h < 32 or w < 32 or h % 32 or w % 32:
             raise InputError(f"training size {h}x{w} ({name}) must be multiples of 32 (64 recommended), e.g. "
                              f"{max(32, -(-h // 32) * 32)}x{max(32, -(-w // 32) * 32)}")
+    if config.num_depth < 2:
+        raise InputError(f"num_depth must be at least 2 (the depth planes of a sample's range), got {config.num_depth} "
+                         "(--set num_depth=...)")
     if config.num_views < 2:
         raise InputError(f"num_views must be at least 2 (the reference view and a source), got {config.num_views}")
     if config.batch_size < 1 or (config.max_steps is not None and config.max_steps < 0) or config.epochs < 0:
