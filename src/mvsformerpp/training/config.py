@@ -349,7 +349,12 @@ def check_config(config: TrainConfig) -> TrainConfig:
     number("resize_min_scale", 0.0, 1.0, low_open=True)
     number("synthetic_render_scale", 1.0, 4.0)
     number("window_guide", 0.0, 1.0)
-    for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "seed"):
+    if config.recipe == "synthetic" and (config.synthetic_train_scenes < 1 or config.synthetic_val_scenes < 1
+                                         or config.synthetic_views_per_scene < config.num_views):
+        raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be >= 1 and synthetic_views_per_scene "
+                         f">= num_views ({config.num_views}), got {config.synthetic_train_scenes}, "
+                         f"{config.synthetic_val_scenes} and {config.synthetic_views_per_scene}")
+    for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "seed", "micro_batch"):
         if getattr(config, name) < 0:
             raise InputError(f"{name} must be >= 0, got {getattr(config, name)} (--set {name}=...)")
     if not all(0 <= b < 1 for b in config.betas):
