@@ -314,6 +314,10 @@ def load_config(recipe_or_file: str, overrides: dict | None = None) -> TrainConf
     return check_config(TrainConfig.from_dict(overrides or {}, config))
 
 
+MAX_SYNTHETIC_SCENES = 10_000_000
+"""Largest synthetic_train_scenes: an epoch's order is a permutation of all their samples."""
+
+
 def check_config(config: TrainConfig) -> TrainConfig:
     """Reject values the run cannot use, with the field and the fix; returns ``config``."""
     sizes = [("height/width", (config.height, config.width))] + [("resolutions", r) for r in config.resolutions]
@@ -349,6 +353,9 @@ def check_config(config: TrainConfig) -> TrainConfig:
     number("resize_min_scale", 0.0, 1.0, low_open=True)
     number("synthetic_render_scale", 1.0, 4.0)
     number("window_guide", 0.0, 1.0)
+    if config.recipe == "synthetic" and config.synthetic_train_scenes > MAX_SYNTHETIC_SCENES:
+        raise InputError(f"synthetic_train_scenes must be at most {MAX_SYNTHETIC_SCENES:,} (every epoch orders all "
+                         f"their samples), got {config.synthetic_train_scenes:,}")
     if config.recipe == "synthetic" and (config.synthetic_train_scenes < 1 or config.synthetic_val_scenes < 1
                                          or config.synthetic_views_per_scene < config.num_views):
         raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be >= 1 and synthetic_views_per_scene "

@@ -2,9 +2,10 @@
 
 What the page shows: the fused cloud (a random subset within a point budget), every camera as a frustum
 with its photo, a panel with the chosen view's photo, depth map (as the report shows it: the pixels below
-the run's fusion threshold grey, no-depth hatched, with a colour bar) and confidence map, and a confidence slider that refilters the cloud live (on the per-point
-confidence that ``fuse`` stores). Clicking a frustum selects its view. The server runs headless: open the
-printed URL from any browser that can reach the machine (e.g. through ``ssh -L PORT:localhost:PORT``).
+the run's fusion threshold grey, no-depth hatched, with a colour bar) and confidence map, and a
+confidence slider that refilters the cloud live (on the per-point confidence that ``fuse`` stores).
+Clicking a frustum selects its view. The server runs headless: open the printed URL from any browser
+that can reach the machine (e.g. through ``ssh -L PORT:localhost:PORT``).
 """
 
 from __future__ import annotations
