@@ -316,6 +316,8 @@ def load_config(recipe_or_file: str, overrides: dict | None = None) -> TrainConf
 
 MAX_SYNTHETIC_SCENES = 10_000_000
 """Largest synthetic_train_scenes: an epoch's order is a permutation of all their samples."""
+MAX_SCENE_VIEWS = 1000
+"""Largest synthetic_views_per_scene."""
 
 
 def check_config(config: TrainConfig) -> TrainConfig:
@@ -353,9 +355,12 @@ def check_config(config: TrainConfig) -> TrainConfig:
     number("resize_min_scale", 0.0, 1.0, low_open=True)
     number("synthetic_render_scale", 1.0, 4.0)
     number("window_guide", 0.0, 1.0)
-    if config.recipe == "synthetic" and config.synthetic_train_scenes > MAX_SYNTHETIC_SCENES:
-        raise InputError(f"synthetic_train_scenes must be at most {MAX_SYNTHETIC_SCENES:,} (every epoch orders all "
-                         f"their samples), got {config.synthetic_train_scenes:,}")
+    if config.recipe == "synthetic" and (max(config.synthetic_train_scenes, config.synthetic_val_scenes)
+                                         > MAX_SYNTHETIC_SCENES or config.synthetic_views_per_scene > MAX_SCENE_VIEWS):
+        raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be at most {MAX_SYNTHETIC_SCENES:,} "
+                         f"(every epoch orders all their samples) and synthetic_views_per_scene at most "
+                         f"{MAX_SCENE_VIEWS} (each scene lays out its cameras), got {config.synthetic_train_scenes:,}, "
+                         f"{config.synthetic_val_scenes:,} and {config.synthetic_views_per_scene:,}")
     if config.recipe == "synthetic" and (config.synthetic_train_scenes < 1 or config.synthetic_val_scenes < 1
                                          or config.synthetic_views_per_scene < config.num_views):
         raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be >= 1 and synthetic_views_per_scene "
