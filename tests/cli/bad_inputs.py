@@ -472,6 +472,8 @@ CASES: list[Case] = [
     Case("train-scenes-huge", "train --set synthetic_train_scenes=1000000000 (hung ordering an epoch)",
          lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "synthetic_train_scenes=1000000000"],
          "at most"),
+    Case("train-workers-huge", "train --set num_workers=1000000000 (hung starting processes)",
+         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "num_workers=1000000000"], "num_workers"),
     Case("train-warmup-negative", "train --set warmup_steps=-5",
          lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "warmup_steps=-5"], "warmup_steps"),
     Case("train-source-os-system", "train --set synthetic_source=os:system (not a scene generator)",

@@ -318,6 +318,8 @@ MAX_SYNTHETIC_SCENES = 10_000_000
 """Largest synthetic_train_scenes: an epoch's order is a permutation of all their samples."""
 MAX_SCENE_VIEWS = 1000
 """Largest synthetic_views_per_scene."""
+MAX_WORKERS = 256
+"""Largest num_workers (data-loading processes)."""
 
 
 def check_config(config: TrainConfig) -> TrainConfig:
@@ -366,6 +368,9 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be >= 1 and synthetic_views_per_scene "
                          f">= num_views ({config.num_views}), got {config.synthetic_train_scenes}, "
                          f"{config.synthetic_val_scenes} and {config.synthetic_views_per_scene}")
+    if config.num_workers > MAX_WORKERS:
+        raise InputError(f"num_workers must be at most {MAX_WORKERS} (each is a process rendering samples), got "
+                         f"{config.num_workers:,} (--set num_workers=...)")
     for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "seed", "micro_batch"):
         if getattr(config, name) < 0:
             raise InputError(f"{name} must be >= 0, got {getattr(config, name)} (--set {name}=...)")
