@@ -6,6 +6,7 @@ import argparse
 
 MAX_SIZE = 8192  # pixels per side
 MAX_VIEWS = 1000
+MAX_OBJECTS = 200
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -43,6 +44,9 @@ def run(args: argparse.Namespace) -> int:
 
     if args.seed < 0:
         raise InputError(f"--seed must be >= 0, got {args.seed}")
+    if args.objects is not None and not 0 <= args.objects <= MAX_OBJECTS:
+        raise InputError(f"--objects must be 0 .. {MAX_OBJECTS} (every ray is tested against every object), got "
+                         f"{args.objects}")
     if args.views < 2 or args.height < 32 or args.width < 32 or args.scenes < 1:
         raise InputError(f"need --views >= 2, --height/--width >= 32 and --scenes >= 1, got --views {args.views} "
                          f"--height {args.height} --width {args.width} --scenes {args.scenes}")

@@ -14,6 +14,7 @@ in-memory :func:`mvsformerpp.fusion.fuse_depth_maps` gives, in the same order.
 from __future__ import annotations
 
 import logging
+import math
 import time
 from pathlib import Path
 
@@ -217,8 +218,8 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     folder = Path(folder)
     out_ply = Path(out_ply) if out_ply is not None else folder / "fused.ply"
     config = config or FusionConfig()
-    if memory_gb is not None and memory_gb <= 0:
-        raise InputError(f"--memory-gb must be positive, got {memory_gb}")
+    if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
+        raise InputError(f"--memory-gb must be a positive number of GB, got {memory_gb}")
     depths = DepthFolder(folder, mask_dir, max_size)
     scene = depths.scene
     budget = memory_gb * 2**30 if memory_gb else 0.5 * available_memory_bytes(torch.device(device))
