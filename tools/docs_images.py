@@ -1,0 +1,88 @@
+"""The pictures of docs/images: the report of the demo run and a shaded view of its TSDF mesh.
+
+    python tools/docs_images.py OUT        # OUT: a `mvsformerpp demo -o OUT` folder (with report.html)
+
+Writes docs/images/report.png (headless Chromium's rendering of OUT/report.html, its first 1280x1400
+pixels, with this machine's folders shortened to OUT and the input's name) and docs/images/mesh.png
+(OUT's TSDF mesh, made with `mvsformerpp mesh` if OUT/mesh.ply is missing, seen from the first camera:
+each triangle's projection filled with its Lambert shade, nearest last).
+"""
+
+from __future__ import annotations
+
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+from PIL import Image, ImageDraw
+
+ROOT = Path(__file__).resolve().parents[1]
+IMAGES = ROOT / "docs" / "images"
+
+
+def report_png(out: Path, png: Path) -> None:
+    """The report as a browser shows it, with this machine's folders shortened (OUT, the input's name)."""
+    import json
+
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        sys.exit("error: headless Chromium is needed (apt-get install chromium)")
+    text = (out / "report.html").read_text()
+    source = json.loads((out / "config.json").read_text()).get("input")
+    if source:
+        text = text.replace(source, Path(source).name)
+    text = text.replace(str(out.resolve()), "OUT").replace(str(out), "OUT")
+    with tempfile.TemporaryDirectory() as tmp:
+        page = Path(tmp) / "report.html"
+        page.write_text(text)
+        subprocess.run([exe, "--headless", "--no-sandbox", "--disable-gpu", "--hide-scrollbars",
+                        f"--user-data-dir={tmp}/profile", "--window-size=1280,1400", f"--screenshot={png}",
+                        page.as_uri()], capture_output=True, timeout=120, check=False)
+    if not png.is_file():
+        sys.exit("error: chromium wrote no screenshot")
+    Image.open(png).convert("RGB").quantize(256).save(png, optimize=True)
+
+
+def mesh_png(out: Path, png: Path, size: int = 720) -> None:
+    from mvsformerpp.io.mvsnet import load_mvsnet_scene
+    from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
+
+    mesh = out / "mesh.ply"
+    if not mesh.is_file():
+        subprocess.run([sys.executable, "-m", "mvsformerpp", "mesh", str(out), "-o", str(mesh), "--quiet"], check=True)
+    verts, faces = ply_points(read_ply(mesh)).astype(np.float64), read_ply_faces(mesh)
+    view = load_mvsnet_scene(out).views[0]
+    cam = verts @ view.R.T + view.t
+    uv = cam @ view.K.T
+    uv = uv[:, :2] / uv[:, 2:3]
+    a, b, c = (verts[faces[:, k]] for k in range(3))
+    normal = np.cross(b - a, c - a)
+    normal /= np.maximum(np.linalg.norm(normal, axis=1, keepdims=True), 1e-12)
+    light = view.R.T @ np.array([0.3, -0.5, -0.8])  # from above the camera, towards the scene
+    shade = np.clip(np.abs(normal @ (-light / np.linalg.norm(light))), 0.0, 1.0)
+    depth = cam[faces].mean(1)[:, 2]
+    s = size / max(view.width, view.height)
+    img = Image.new("RGB", (round(view.width * s), round(view.height * s)), (255, 255, 255))
+    draw = ImageDraw.Draw(img)
+    for f in np.argsort(-depth):  # far first, so nearer triangles paint over
+        g = int(40 + 200 * shade[f])
+        draw.polygon([tuple(uv[v] * s) for v in faces[f]], fill=(g, g, int(g * 0.95)))
+    img.quantize(64).save(png, optimize=True)
+
+
+def main() -> None:
+    if len(sys.argv) != 2 or not (Path(sys.argv[1]) / "report.html").is_file():
+        sys.exit(__doc__)
+    out = Path(sys.argv[1])
+    IMAGES.mkdir(parents=True, exist_ok=True)
+    report_png(out, IMAGES / "report.png")
+    mesh_png(out, IMAGES / "mesh.png")
+    for name in ("report.png", "mesh.png"):
+        print(f"wrote docs/images/{name} ({(IMAGES / name).stat().st_size / 1024:.0f} KiB)")
+
+
+if __name__ == "__main__":
+    main()
