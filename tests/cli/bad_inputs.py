@@ -278,6 +278,11 @@ def _short_par_line(d: Path) -> list[str]:
     return recon(d, src=d / "m")
 
 
+def train_set(*values: str) -> Callable[[Path], list[str]]:
+    """A case's command: ``train synthetic -o DIR/run --set VALUE ...``."""
+    return lambda d: ["train", "synthetic", "-o", str(d / "run"), *[a for v in values for a in ("--set", v)]]
+
+
 _TINY_TRAIN = ["--max-steps", "1", "--batch-size", "1", "--height", "32", "--width", "32", "--views", "2", "--set",
                "val_samples=1", "--set", "synthetic_views_per_scene=2", "--set", "progress=false", "--set",
                "tensorboard=false", "--set", "val_every=0"]
@@ -467,23 +472,23 @@ CASES: list[Case] = [
                                                              "--min-conf", "2"], "--min-conf"),
     # train
     Case("train-lr-negative", "train --set lr=-1",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "lr=-1"], "lr"),
+         train_set("lr=-1"), "lr"),
     Case("train-lr-nan", "train --set lr=.nan",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "lr=.nan"], "lr"),
+         train_set("lr=.nan"), "lr"),
     Case("train-num-depth-zero", "train --set num_depth=0",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "num_depth=0"], "num_depth"),
+         train_set("num_depth=0"), "num_depth"),
     Case("train-scenes-negative", "train --set synthetic_train_scenes=-1",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "synthetic_train_scenes=-1"],
+         train_set("synthetic_train_scenes=-1"),
          "synthetic_train_scenes"),
     Case("train-scenes-huge", "train --set synthetic_train_scenes=1000000000 (hung ordering an epoch)",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "synthetic_train_scenes=1000000000"],
+         train_set("synthetic_train_scenes=1000000000"),
          "at most"),
     Case("train-workers-huge", "train --set num_workers=1000000000 (hung starting processes)",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "num_workers=1000000000"], "num_workers"),
+         train_set("num_workers=1000000000"), "num_workers"),
     Case("train-warmup-negative", "train --set warmup_steps=-5",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "warmup_steps=-5"], "warmup_steps"),
+         train_set("warmup_steps=-5"), "warmup_steps"),
     Case("train-source-os-system", "train --set synthetic_source=os:system (not a scene generator)",
-         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "synthetic_source=os:system"],
+         train_set("synthetic_source=os:system"),
          "not a scene generator"),
     Case("train-parallax-outside", "a recipe whose views fall outside its declared parallax_range",
          lambda d: ["train", "synthetic", "-o", str(d / "run"), "--set", "parallax_range=[30, 60]",

@@ -19,6 +19,11 @@ def initial_hypotheses(depth_values: torch.Tensor, num: int, H: int, W: int) -> 
     return 1.0 / inv
 
 
+def plane_step(hypotheses: torch.Tensor) -> torch.Tensor:
+    """[B, h, w] inverse-depth spacing of a stage's planes (uniform in 1/d), the unit of the next window."""
+    return 1.0 / hypotheses[:, 2] - 1.0 / hypotheses[:, 1]
+
+
 def refined_hypotheses(depth: torch.Tensor, prev_hypotheses: torch.Tensor, num: int, ratio: float,
                        H: int, W: int, min_inverse: torch.Tensor | None = None) -> torch.Tensor:
     """Stages 2-4: ``num`` hypotheses uniform in 1/d around the previous estimate, upsampled x2.
@@ -29,7 +34,7 @@ def refined_hypotheses(depth: torch.Tensor, prev_hypotheses: torch.Tensor, num: 
     (spec 14.7). The window is shifted up, keeping its width, only where it would cross the bound,
     so ordinary ranges are untouched.
     """
-    step = 1.0 / prev_hypotheses[:, 2] - 1.0 / prev_hypotheses[:, 1]
+    step = plane_step(prev_hypotheses)
     inv_near = 1.0 / depth + ratio * step
     inv_far = 1.0 / depth - ratio * step
     if min_inverse is not None:

@@ -14,7 +14,7 @@ from mvsformerpp.models.dinov2 import DinoVisionTransformer
 from mvsformerpp.models.features import ImageFeatures, decode_views, encode_images
 from mvsformerpp.models.fmt import FMTWithPathway
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
-from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
+from mvsformerpp.models.hypotheses import initial_hypotheses, plane_step, refined_hypotheses
 from mvsformerpp.models.sva import SideViewAttention
 
 
@@ -176,7 +176,7 @@ def _guided_centre(estimate: torch.Tensor, prev_hypotheses: torch.Tensor, depth:
     window's half-width (``ratio`` plane steps of the previous stage in inverse depth, the step
     :func:`refined_hypotheses` measures), so the truth falls anywhere in the window as it does when the
     previous stage is nearly right, not always near its middle; else ``estimate``."""
-    step = (1.0 / prev_hypotheses[:, 2] - 1.0 / prev_hypotheses[:, 1]).abs()
+    step = plane_step(prev_hypotheses).abs()
     inv = (1.0 / depth.clamp(min=1e-6) + jitter * ratio * step).clamp(min=min_inverse[:, None, None])
     return torch.where(depth > 0, 1.0 / inv, estimate)
 
