@@ -23,7 +23,9 @@ from mvsformerpp.inference.runner import SceneInference
 from mvsformerpp.io.detect import load_scene
 from mvsformerpp.io.images import read_image
 from mvsformerpp.pipelines.demo import temple_dir
-from mvsformerpp.pipelines.reconstruct import ReconstructConfig, build_network, prepare_scene
+from mvsformerpp.pipelines.network import build_network
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig
+from mvsformerpp.pipelines.scene_input import prepare_scene
 
 
 def run(model, scene, plans, images, args, cache_mb: int) -> dict:

@@ -35,7 +35,8 @@ def main() -> None:
         synthetic_quality,
         temple_quality,
     )
-    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, describe_weights
+    from mvsformerpp.pipelines.network import describe_weights
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig
     from mvsformerpp.utils.allocator import tune_allocator
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

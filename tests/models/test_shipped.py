@@ -94,7 +94,8 @@ def test_shipped_weights_refuse_another_architecture():
 
 
 def test_checkpoint_for_another_preset_names_the_preset_it_fits(tmp_path):
-    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, build_network
+    from mvsformerpp.pipelines.network import build_network
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 
     ckpt = save_checkpoint(build_model("lite"), tmp_path / "lite_run.safetensors")
     with pytest.raises(InputError, match="'lite' preset.*--preset lite") as e:
@@ -106,7 +107,8 @@ def test_checkpoint_for_another_preset_names_the_preset_it_fits(tmp_path):
 
 
 def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
-    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, build_network, describe_weights
+    from mvsformerpp.pipelines.network import build_network, describe_weights
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 
     config = ReconstructConfig()
     assert config.preset == shipped.SHIPPED_PRESET and config.checkpoint is None
@@ -123,8 +125,9 @@ def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
 def test_fusion_threshold_calibrated_for_the_shipped_weights(monkeypatch, tmp_path):
     import json
 
-    from mvsformerpp.cli.fuse import shipped_weights_conf
-    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, describe_fusion, fusion_conf_for
+    from mvsformerpp.inference.output_folder import recorded_calibrated_conf as shipped_weights_conf
+    from mvsformerpp.pipelines.network import describe_fusion, fusion_conf_for
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 
     record = {**shipped.shipped_record(), "fusion_conf": {"normal": 0.2, "dynamic": 0.15}}
     monkeypatch.setattr(shipped, "shipped_record", lambda: record)

@@ -308,7 +308,8 @@ def test_paper_settings_reach_the_run(scene4, tmp_path):
     import argparse
 
     from mvsformerpp.cli.reconstruct import add_model_args, add_run_args, config_from_args
-    from mvsformerpp.pipelines.reconstruct import _fusion_config, load_input, prepare_scene
+    from mvsformerpp.pipelines.network import fusion_preset as _fusion_config
+    from mvsformerpp.pipelines.scene_input import load_input, prepare_scene
 
     p = argparse.ArgumentParser()
     add_model_args(p, "lite")
@@ -341,25 +342,6 @@ def test_more_views_than_images_are_capped_with_a_word(scene4, tmp_path, caplog)
     assert "the scene has 4 images: 4 views per depth map (--views 9" in caplog.text
     assert set(model.views_seen) == {4}
     assert json.loads((tmp_path / "out" / "config.json").read_text())["config"]["num_views"] == 4
-
-
-def test_every_setting_names_the_flag_that_sets_it():
-    """config_flag() names a flag the reconstruct command has, for every field a flag sets (no drift between
-    the config, the command line and the messages)."""
-    import argparse
-
-    from mvsformerpp.cli import build_parser
-    from mvsformerpp.pipelines.reconstruct import config_flag
-
-    parser = build_parser()
-    sub = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction)).choices["reconstruct"]
-    flags = set(sub._option_string_actions)
-    for f in dataclasses.fields(ReconstructConfig):
-        name = config_flag(f.name)
-        if name.endswith("(a ReconstructConfig field)"):
-            continue
-        assert all(part in flags for part in name.split("/")), (f.name, name)
-    assert config_flag("fusion_conf") == "--conf" and config_flag("num_views") == "--views"
 
 
 def test_the_plan_is_said_before_the_depth_maps(scene4, tmp_path, capsys):

@@ -5,7 +5,7 @@ import json
 import pytest
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.pipelines.reconstruct import load_input
+from mvsformerpp.pipelines.scene_input import load_input
 from mvsformerpp.pipelines.sfm import SfMConfig, run_sfm
 
 

@@ -10,7 +10,8 @@ import yaml
 
 from mvsformerpp.data import SyntheticDataset
 from mvsformerpp.errors import InputError
-from mvsformerpp.pipelines.reconstruct import ReconstructConfig, build_network
+from mvsformerpp.pipelines.network import build_network
+from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 from mvsformerpp.pipelines.train import run_training
 from mvsformerpp.training.checkpoints import CheckpointWriteError
 from mvsformerpp.training.datasets import build_datasets

@@ -108,7 +108,8 @@ def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys, 
 
 def test_the_report_names_the_weights_that_ran(synth_run, tmp_path, fake_network):
     from mvsformerpp.models.shipped import shipped_record
-    from mvsformerpp.pipelines.reconstruct import ReconstructConfig, weights_name
+    from mvsformerpp.pipelines.network import weights_name
+    from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 
     record = shipped_record()
     assert weights_name(ReconstructConfig(preset="lite")).startswith(f"the shipped default weights {record['file']}")

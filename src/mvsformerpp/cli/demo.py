@@ -10,7 +10,7 @@ from mvsformerpp.cli.reconstruct import add_model_args, print_fusion, print_summ
 
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
-    from mvsformerpp.pipelines.reconstruct import describe_weights
+    from mvsformerpp.pipelines.network import describe_weights
 
     config = dataclasses.replace(DEMO_CONFIG, preset=args.preset, checkpoint=args.checkpoint, device=args.device,
                                  precision=args.precision, max_size=args.max_size, max_images=args.max_images)
@@ -26,6 +26,8 @@ def run(args: argparse.Namespace) -> int:
 
 def register(subparsers) -> None:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG
+    from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+    from mvsformerpp.utils.config_flags import add_config_flags
 
     p = subparsers.add_parser("demo", help="reconstruct the bundled Middlebury temple end to end",
                               description="Reconstruct the bundled 16-view Middlebury temple with the lite network "
@@ -33,8 +35,6 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", default="mvsformerpp-demo", metavar="OUT",
                    help="output folder (default: ./mvsformerpp-demo)")
     add_model_args(p, default_preset="lite")
-    p.add_argument("--max-size", type=int, default=DEMO_CONFIG.max_size, metavar="PX",
-                   help=f"longer side of the working resolution (default: {DEMO_CONFIG.max_size})")
-    p.add_argument("--max-images", type=int, metavar="N", help="use only the first N of the 16 views")
+    add_config_flags(p, ReconstructConfig, ("max_size", "max_images"), max_size=DEMO_CONFIG.max_size)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
     p.set_defaults(func=run)

@@ -49,6 +49,38 @@ def disk_full_guard(what: Path):
         raise
 
 
+def read_run_record(root: str | Path) -> dict | None:
+    """``config.json`` of a ``reconstruct`` output folder (its settings, resolved values, scene identity), or
+    None when ``root`` holds no readable one (another tool's depth maps)."""
+    try:
+        record = json.loads((Path(root) / "config.json").read_text())
+    except (OSError, ValueError):
+        return None
+    return record if isinstance(record, dict) and isinstance(record.get("config"), dict) else None
+
+
+def recorded_fusion_size(root: str | Path) -> int | None:
+    """The working resolution (longer side) the run of ``root`` computed its depth maps at, when it asks
+    fusion to read them at it (``fusion_resolution`` working, the default), else None."""
+    record = read_run_record(root)
+    try:
+        size = record["resolved"]["long_side"]
+        wanted = record["config"].get("fusion_resolution", "original")
+    except (TypeError, KeyError, AttributeError):
+        return None
+    return int(size) if wanted == "working" and isinstance(size, int) else None
+
+
+def recorded_calibrated_conf(root: str | Path, method: str) -> float | None:
+    """The fusion threshold calibrated for the shipped weights when the run of ``root`` used them, else None."""
+    from mvsformerpp.models import shipped
+
+    record = read_run_record(root)
+    if record is None or not shipped.runs_shipped(record["config"].get("preset"), record["config"].get("checkpoint")):
+        return None
+    return shipped.calibrated_conf(method)
+
+
 def view_stem(i: int) -> str:
     return f"{i:08d}"
 

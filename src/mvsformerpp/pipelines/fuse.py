@@ -191,35 +191,74 @@ def view_cache_bytes(pixels_per_view: int, num_sources: int, config: FusionConfi
     return int(memory_bytes - working_memory_bytes(pixels_per_view, num_sources, config))
 
 
+RECORDED = "recorded"
+"""``max_size`` of :func:`fuse`: the size a ``reconstruct`` run's config.json asks fusion to read its maps at."""
+
+
 def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
          device: str = "cpu", quiet: bool = False, memory_gb: float | None = None,
          mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True,
-         max_size: int | None = None) -> Path:
+         max_size: int | str | None = RECORDED) -> Path:
     """Fuse the depth maps of ``folder`` into ``out_ply`` (default ``folder/fused.ply``); returns its path.
 
+    The defaults are the ``fuse`` command's: ``config`` None is the ``normal`` preset with the threshold
+    calibrated for the shipped weights when they made the depth maps (:func:`default_fusion_config`).
     ``memory_gb`` bounds the loaded views and working memory (default: half of the free memory).
     ``mask_dir``: object masks (:mod:`mvsformerpp.io.masks`); depths outside them are dropped before
     fusion. ``normals``: store each point's normal and confidence from its reference view's maps
     (:mod:`mvsformerpp.fusion.normals`). ``explain_empty``: when no point survives, log why and which
     settings would keep points (trial fusions; parameter sweeps turn this off). ``max_size``: fuse maps larger
-    than this (longer side, pixels) at this size (:class:`DepthFolder`); None: at their stored size.
+    than this (longer side, pixels) at this size (:class:`DepthFolder`); None: at their stored size;
+    ``"recorded"``: at the working resolution a ``reconstruct`` run of ``folder`` recorded (else stored).
+
+    ``out_ply`` is replaced only when it is new or a PLY file, and not while another run writes its folder
+    (:func:`~mvsformerpp.utils.output_guard.claim_output_file`); a full disk or a read-only place is one
+    clear error, and an unfinished cloud never replaces the old one.
     """
     return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
                           max_size)["ply"]
 
 
+def default_fusion_config(folder: str | Path, name: str = "normal", **overrides) -> FusionConfig:
+    """The fusion preset ``name`` as the ``fuse`` command applies it to ``folder``: without a
+    ``conf_threshold`` override, the threshold calibrated for the shipped weights when they made its depth
+    maps (its config.json says so), else the preset's."""
+    from mvsformerpp.fusion import get_config
+    from mvsformerpp.inference.output_folder import recorded_calibrated_conf
+
+    if overrides.get("conf_threshold") is None:
+        overrides["conf_threshold"] = recorded_calibrated_conf(folder, get_config(name).method)
+    return get_config(name, **overrides)
+
+
 def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
                    device: str = "cpu", quiet: bool = False, memory_gb: float | None = None,
                    mask_dir: str | Path | None = None, normals: bool = True, explain_empty: bool = True,
-                   max_size: int | None = None) -> dict:
+                   max_size: int | str | None = RECORDED) -> dict:
     """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
-    from mvsformerpp.inference.resolution import available_memory_bytes
+
+    from mvsformerpp.inference.output_folder import recorded_fusion_size
+    from mvsformerpp.utils.output_guard import claim_output_file, writing
 
     folder = Path(folder)
+    if not folder.is_dir():
+        raise InputError("no such folder", folder)
     out_ply = Path(out_ply) if out_ply is not None else folder / "fused.ply"
-    config = config or FusionConfig()
+    config = config or default_fusion_config(folder)
     if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
         raise InputError(f"--memory-gb must be a positive number of GB, got {memory_gb}")
+    if max_size == RECORDED:
+        max_size = recorded_fusion_size(folder)
+    with claim_output_file(out_ply, b"ply", "PLY"), writing(out_ply):
+        return _fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
+                               max_size)
+
+
+def _fuse_streaming(folder: Path, out_ply: Path, config: FusionConfig, device: str, quiet: bool,
+                    memory_gb: float | None, mask_dir, normals: bool, explain_empty: bool,
+                    max_size: int | None) -> dict:
+    from mvsformerpp.inference.resolution import available_memory_bytes
+
     depths = DepthFolder(folder, mask_dir, max_size)
     scene = depths.scene
     budget = memory_gb * 2**30 if memory_gb else 0.5 * available_memory_bytes(torch.device(device))
@@ -256,3 +295,29 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     if not quiet:
         print(f"{ply.count:,} points in {seconds:.1f} s -> {out_ply}")
     return {"ply": out_ply, "points": ply.count, "seconds": seconds, "view_cache": store.stats()}
+
+
+def fuse_reconstruction(folder, plan, quiet: bool) -> tuple[int | None, bool]:
+    """Stage 5 of ``reconstruct``: fuse the depth maps of ``folder`` (an
+    :class:`~mvsformerpp.inference.output_folder.OutputFolder`) as the run's plan (a
+    :class:`~mvsformerpp.pipelines.run_plan.RunPlan`) says, unless the same maps were already fused with the
+    same settings. Returns the number of points (None with ``--fusion none``) and whether fusion was reused."""
+    from mvsformerpp.inference.output_folder import disk_full_guard, settings_hash
+    from mvsformerpp.io.ply import ply_vertex_count
+    from mvsformerpp.pipelines.network import fusion_preset
+
+    config = plan.config
+    if config.fusion == "none":
+        return None, False
+    ply = folder.root / "fused.ply"
+    max_size = plan.long_side if config.fusion_resolution == "working" else None
+    state = settings_hash({"depth": plan.keys, "fusion": config.fusion, "conf": plan.fusion_conf,
+                           **({"max_size": max_size} if max_size else {}),
+                           **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir else {})})
+    reused = folder.fusion_done(state)
+    if not reused:
+        with disk_full_guard(ply):
+            fuse(folder.root, ply, fusion_preset(config.fusion, plan.fusion_conf), quiet=quiet,
+                 memory_gb=config.memory_gb, mask_dir=config.mask_dir, max_size=max_size)
+        folder.mark_fusion(state)
+    return ply_vertex_count(ply), reused

@@ -22,12 +22,13 @@ import json
 import logging
 import shutil
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal
 
 from mvsformerpp.errors import InputError, MissingDependencyError
 from mvsformerpp.io.images import IMAGE_SUFFIXES, list_images
+from mvsformerpp.utils.config_flags import flag_name
 
 log = logging.getLogger(__name__)
 
@@ -61,31 +62,38 @@ def _stage(progress, name: str) -> None:
         progress.set_description(f"SfM: {name}")
 
 
+SFM = "structure from motion (a folder of photos)"
+
+
 @dataclass(frozen=True)
 class SfMConfig:
     """Structure-from-motion settings for a folder of photos (saved to ``OUT/sfm/options.json``)."""
 
-    camera_model: str = "SIMPLE_RADIAL"
-    """COLMAP camera model to estimate (SIMPLE_PINHOLE, PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV, ...)."""
-    single_camera: bool = False
-    """All photos share one camera (one lens and zoom), which steadies the intrinsics."""
-    matcher: Literal["exhaustive", "sequential"] = "exhaustive"
-    """exhaustive: every pair of photos; sequential: each photo with its neighbours in name order (video frames)."""
-    max_image_size: int = 2000
-    """Longest side used for SIFT features (COLMAP's own default is 3200)."""
-    overlap: int = 10
+    camera_model: str = field(default="SIMPLE_RADIAL", metadata={"group": SFM, "metavar": "MODEL"})
+    """COLMAP camera model to estimate (e.g. PINHOLE, SIMPLE_RADIAL, RADIAL, OPENCV)."""
+    single_camera: bool = field(default=False, metadata={"group": SFM})
+    """All photos come from one camera with one lens and zoom (which steadies the intrinsics)."""
+    matcher: Literal["exhaustive", "sequential"] = field(default="exhaustive", metadata={"group": SFM})
+    """exhaustive: every pair of photos; sequential: each photo with its neighbours in name order (video
+    frames)."""
+    max_image_size: int = field(default=2000, metadata={"flag": "--sfm-max-size", "group": SFM, "metavar": "PX"})
+    """Longest photo side used for SIFT features (COLMAP's own default is 3200)."""
+    overlap: int = field(default=10, metadata={"flag": None})
     """sequential: how many following photos each one is matched with."""
 
     def __post_init__(self) -> None:
         from mvsformerpp.io.colmap_model import CAMERA_MODELS
 
         if self.camera_model not in CAMERA_MODELS:
-            raise InputError(f"--camera-model {self.camera_model!r} is not a COLMAP camera model; choose one of "
+            raise InputError(f"{flag_name(SfMConfig, 'camera_model')} {self.camera_model!r} is not a COLMAP camera "
+                             "model; choose one of "
                              f"{', '.join(CAMERA_MODELS)}")
         if self.max_image_size < 64:
-            raise InputError(f"--sfm-max-size must be at least 64 pixels, got {self.max_image_size}")
+            raise InputError(f"{flag_name(SfMConfig, 'max_image_size')} must be at least 64 pixels, "
+                             f"got {self.max_image_size}")
         if self.matcher not in ("exhaustive", "sequential"):
-            raise InputError(f"--matcher must be exhaustive or sequential, got {self.matcher!r}")
+            raise InputError(f"{flag_name(SfMConfig, 'matcher')} must be exhaustive or sequential, "
+                             f"got {self.matcher!r}")
 
 
 @contextlib.contextmanager

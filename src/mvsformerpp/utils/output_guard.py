@@ -95,11 +95,17 @@ def remove_temporaries(folder: Path) -> int:
     return removed
 
 
+_HELD: set[str] = set()
+"""Folders whose lock this process holds (:func:`claim_output_file` inside them shares the hold: the fusion
+of a ``reconstruct`` run)."""
+
+
 @contextlib.contextmanager
 def folder_lock(folder: Path) -> Iterator[None]:
     """Hold the folder's advisory lock for the block; raise :class:`FolderBusyError` if another run holds it."""
     import fcntl
 
+    key = os.path.realpath(folder)
     path = folder / LOCK
     fd = os.open(path, os.O_RDWR | os.O_CREAT, 0o666)
     try:
@@ -113,9 +119,11 @@ def folder_lock(folder: Path) -> Iterator[None]:
                 "started": time.strftime("%Y-%m-%d %H:%M:%S")}
         os.ftruncate(fd, 0)
         os.pwrite(fd, json.dumps(info).encode(), 0)
+        _HELD.add(key)
         try:
             yield
         finally:
+            _HELD.discard(key)
             with contextlib.suppress(OSError):
                 os.ftruncate(fd, 0)
             fcntl.flock(fd, fcntl.LOCK_UN)
@@ -207,13 +215,15 @@ def claim_output_file(path: str | Path, magic: bytes, what: str) -> Iterator[Pat
     """Check that ``path`` is new or a file of this kind (it starts with ``magic``), then hold it for the block.
 
     Inside a folder an earlier run of this package wrote, the folder's lock is held too (fusing into a
-    folder that ``reconstruct`` is writing stops with the holder's name); the temporaries a killed run
+    folder that another ``reconstruct`` is writing stops with the holder's name; the run that holds it in
+    this process shares its hold); the temporaries a killed run
     left for this file name are removed.
     """
     path = Path(path)
     check_replaceable(path, (magic,), what)
     folder = path.parent
-    lock = folder_lock(folder) if _written_by(folder) is not None else contextlib.nullcontext()
+    held_here = os.path.realpath(folder) in _HELD  # (a reconstruct run of this process fusing into its folder)
+    lock = folder_lock(folder) if _written_by(folder) is not None and not held_here else contextlib.nullcontext()
     with lock:
         if folder.is_dir():
             for p in folder.glob(f".{glob_escape(path.name)}.*.tmp"):

@@ -1,0 +1,132 @@
+"""The settings of ``reconstruct``: one frozen dataclass, the one definition of every flag of the command.
+
+Each field's type, default and docstring make its flag (:mod:`mvsformerpp.utils.config_flags`); the
+field's metadata names the flag where it is not ``--field-name``, and error messages name it the same way
+(:func:`config_flag`).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass, field
+from typing import Literal
+
+from mvsformerpp.errors import InputError
+from mvsformerpp.pipelines.sfm import SfMConfig
+from mvsformerpp.utils.config_flags import flag_name
+
+NETWORK, RUN = "network", "reconstruction"
+
+FUSION_CHOICES = ("normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced")
+"""The fusion presets of :mod:`mvsformerpp.fusion.config` (a test keeps them equal to its ``PRESETS``)."""
+
+
+@dataclass(frozen=True)
+class ReconstructConfig:
+    """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
+
+    preset: Literal["lite", "paper"] = field(default="lite", metadata={"group": NETWORK})
+    """Network preset: ``lite`` is a small network for the CPU with trained weights shipped in the package,
+    ``paper`` the official MVSFormer++ network (with ``--checkpoint model_best.pth``)."""
+    checkpoint: str | None = field(default=None, metadata={"group": NETWORK, "metavar": "PATH"})
+    """Weights matching the preset (default: the shipped weights for ``lite``; ``paper`` has none, so
+    without a checkpoint its network is randomly initialised)."""
+    device: str = field(default="cpu", metadata={"group": NETWORK})
+    """Torch device: cpu, cuda, cuda:1, ..."""
+    precision: Literal["fp32", "bf16", "fp16"] = field(default="fp32", metadata={"group": NETWORK})
+    """Autocast precision of the network (bf16 is the reference's GPU setting); cost volumes stay fp32."""
+    max_size: int | None = field(default=1536, metadata={"group": RUN, "metavar": "PX"})
+    """Cap on the longer side of the working resolution (images are never upscaled and the aspect ratio
+    is kept)."""
+    memory_gb: float | None = field(default=None, metadata={"group": RUN, "metavar": "GB"})
+    """Memory budget of one forward pass and of fusion, which streams the depth maps through a cache of
+    this size (default: half of the free memory)."""
+    num_views: int = field(default=5, metadata={"flag": "--views", "group": RUN, "metavar": "N"})
+    """Views per depth map: the reference plus N-1 best neighbours (the reference uses 5 on DTU)."""
+    depth_range: tuple[float, float] | None = field(default=None,
+                                                    metadata={"group": RUN, "metavar": ("MIN", "MAX")})
+    """Override of every view's depth range (scene units)."""
+    depth_format: Literal["auto", "interval", "max"] = field(default="auto", metadata={"group": RUN})
+    """How a two-number depth line of an MVSNet cam file is read: MIN INTERVAL, MIN MAX, or auto (MAX when
+    the second number is larger)."""
+    max_images: int | None = field(default=None, metadata={"group": RUN, "metavar": "N"})
+    """Use only N overlapping views: the first view and its best neighbours (quick looks, tests)."""
+    interval_scale: float = field(default=1.0, metadata={"group": RUN, "metavar": "S"})
+    """Widen each view's depth range from its minimum by S (the reference's interval_scale for ranges given
+    as MIN INTERVAL; the paper's DTU and Tanks-and-Temples runs use 1.06); not applied to ``--depth-range``."""
+    num_depth: int = field(default=192, metadata={"group": RUN, "metavar": "N"})
+    """Depth planes of the input range, written to the output cams (the cascade uses only the ends of the
+    range)."""
+    temperatures: tuple[float, ...] = field(default=(5.0, 5.0, 5.0, 1.0),
+                                            metadata={"group": RUN, "metavar": "T", "nargs": 4})
+    """Per-stage softmax temperatures of the depth readout (the paper's: 5 5 5 1)."""
+    fusion: Literal[FUSION_CHOICES + ("none",)] = field(default="normal", metadata={"group": RUN})
+    """Fusion preset (dtu, tnt_intermediate and tnt_advanced are the paper's settings, see
+    ``mvsformerpp fuse``); none writes the depth maps only (fuse later with ``mvsformerpp fuse``)."""
+    fusion_conf: float | None = field(default=None, metadata={"flag": "--conf", "group": RUN, "metavar": "C"})
+    """Fusion confidence threshold in [0, 1) (default: the one calibrated for the default weights when they
+    run, else the preset's)."""
+    fusion_resolution: Literal["working", "original"] = field(default="working", metadata={"group": RUN})
+    """Size of the depth maps fusion reads: working, the resolution they were computed at (photos larger
+    than it do not multiply the points or the fusion time), or original, the maps as written."""
+    mask_dir: str | None = field(default=None, metadata={"group": RUN, "metavar": "DIR"})
+    """Object masks applied before fusion: one per photo, named like it or by view index (DTU's
+    mask/000.png and BlendedMVS's _masked.jpg are recognised)."""
+    output_resolution: Literal["original", "working"] = field(default="original", metadata={"group": RUN})
+    """Size of the depth and confidence maps: each photo's own (upsampled from the working resolution), or
+    the working resolution with images/ and cams/ scaled to match (smaller files, no upsampling)."""
+    cache_mb: int = field(default=2048, metadata={"group": RUN, "metavar": "MIB"})
+    """Per-image feature cache budget in MiB; 0 recomputes every image's features for every reference view."""
+    sfm: SfMConfig = field(default=SfMConfig(), metadata={"nested": True})
+    """Structure-from-motion settings, used when INPUT is a folder of photos."""
+    seed: int = field(default=0, metadata={"flag": None})
+    """Seed of the random initialisation when no checkpoint is given (keeps resumed runs consistent)."""
+
+    def __post_init__(self) -> None:
+        if self.num_views < 2:
+            raise InputError(f"{config_flag('num_views')} must be at least 2 (the reference and one source view), "
+                             f"got {self.num_views}")
+        if self.num_depth < 2:
+            raise InputError(f"{config_flag('num_depth')} must be at least 2, got {self.num_depth}")
+        if self.max_size is not None and self.max_size < 64:
+            raise InputError(f"{config_flag('max_size')} must be at least 64 pixels, got {self.max_size}")
+        if self.max_images is not None and self.max_images < 2:
+            raise InputError(f"{config_flag('max_images')} must be at least 2, got {self.max_images}")
+        if self.memory_gb is not None and not (math.isfinite(self.memory_gb) and self.memory_gb > 0):
+            raise InputError(f"{config_flag('memory_gb')} must be a positive number of GB, got {self.memory_gb}")
+        if self.cache_mb < 0:
+            raise InputError(f"{config_flag('cache_mb')} must be >= 0, got {self.cache_mb}")
+        if self.depth_range is not None and not (0 < self.depth_range[0] < self.depth_range[1]
+                                                 and math.isfinite(self.depth_range[1])):
+            raise InputError(f"{config_flag('depth_range')} {self.depth_range[0]:g} {self.depth_range[1]:g} must "
+                             "satisfy 0 < min < max")
+        if self.depth_format not in ("auto", "interval", "max"):
+            raise InputError(f"{config_flag('depth_format')} must be auto, interval or max, got {self.depth_format!r}")
+        if not (math.isfinite(self.interval_scale) and self.interval_scale > 0):
+            raise InputError(f"{config_flag('interval_scale')} must be a positive number, got {self.interval_scale}")
+        if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
+            raise InputError(f"{config_flag('fusion_conf')} must be a confidence in [0, 1), got {self.fusion_conf}")
+        if len(self.temperatures) != 4:
+            raise InputError(f"{config_flag('temperatures')} needs one value per stage (4), got {self.temperatures}")
+        if not all(math.isfinite(t) and t > 0 for t in self.temperatures):
+            raise InputError(f"{config_flag('temperatures')} must be four positive numbers (the official runs use "
+                             "5 5 5 1), got " + " ".join(f"{t:g}" for t in self.temperatures))
+
+    def result_settings(self) -> dict:
+        """The fields that change the depth maps (not device or cache size, which only change speed)."""
+        d = dataclasses.asdict(self)
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_resolution", "mask_dir",
+                  "sfm"):  # (SfM: cameras)
+            d.pop(k)
+        return d
+
+
+def config_flag(name: str) -> str:
+    """The command-line flag of a :class:`ReconstructConfig` field (nested SfM settings: their flags joined
+    by ``/``)."""
+    f = next(f for f in dataclasses.fields(ReconstructConfig) if f.name == name)
+    if f.metadata.get("nested"):
+        return "/".join(flag_name(SfMConfig, g.name) for g in dataclasses.fields(SfMConfig)
+                        if g.metadata.get("flag", "") is not None)
+    return flag_name(ReconstructConfig, name)

@@ -1,0 +1,120 @@
+"""Stage 2 of ``reconstruct``: what the run will do, decided once before any depth map.
+
+A :class:`RunPlan` holds the checked scene, the working resolution of every view, the key of each
+view's depth map (its inputs and every setting it depends on: a view whose key is unchanged is not
+computed again), the weights and the confidence threshold fusion will use. Every later stage reads it
+and none changes it.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import torch
+
+from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
+from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
+from mvsformerpp.io.scene import Scene
+from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, weights_id, weights_name
+from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+
+log = logging.getLogger(__name__)
+
+BYTES_PER_OUTPUT_PIXEL = 11
+"""Disk per pixel of a view's outputs: depth and confidence PFM (4 + 4 bytes) and two PNG previews (about 3)."""
+
+
+@dataclass(frozen=True)
+class RunPlan:
+    """The decisions of one ``reconstruct`` run (see the module docstring)."""
+
+    config: ReconstructConfig
+    """The run's settings, ``num_views`` capped at the number of images."""
+    input_path: Path
+    scene: Scene
+    """The views to reconstruct, overrides applied and checked."""
+    source_format: str
+    input_views: int
+    """Views in the input before ``max_images``."""
+    fingerprint: str
+    """Identity of the input scene (cameras and image sizes), stored in config.json."""
+    device: torch.device
+    long_side: int
+    """Longer side of the working resolution."""
+    plans: list[ViewResize]
+    """Working resolution of each view."""
+    keys: list[str]
+    """Per view: the hash of what its depth map depends on."""
+    weights: str
+    """The weights in a few words (config.json, the report)."""
+    fusion_conf: float | None
+    """Fusion's confidence threshold (None: the fusion preset's own)."""
+
+    @property
+    def resolved(self) -> dict:
+        """The working resolution as config.json and the summary record it."""
+        return {"long_side": self.long_side, "canvas": [self.plans[0].canvas_width, self.plans[0].canvas_height]}
+
+    @property
+    def preview_conf(self) -> float | None:
+        """The threshold below which the depth previews grey pixels: what fusion drops (None without fusion)."""
+        if self.config.fusion == "none":
+            return None
+        return self.fusion_conf if self.fusion_conf is not None else fusion_preset(self.config.fusion).conf_threshold
+
+
+def cap_views(config: ReconstructConfig, num_images: int, say: bool) -> ReconstructConfig:
+    """``config`` with at most ``num_images`` views per depth map (more would only repeat source views:
+    slower, not better); ``say``: warn when ``--views`` asked for more."""
+    if config.num_views <= num_images:
+        return config
+    if say and config.num_views != ReconstructConfig.num_views:  # said when asked for, not by default
+        log.warning("the scene has %d images: %d views per depth map (--views %d asks for more than there are)",
+                    num_images, num_images, config.num_views)
+    return dataclasses.replace(config, num_views=num_images)
+
+
+def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str, config: ReconstructConfig,
+             device: torch.device, long_side: int, given_model: bool) -> RunPlan:
+    """The plan for ``scene`` (prepared from the input ``full``) at the working resolution ``long_side``
+    (:func:`working_long_side`); ``given_model``: the caller passed its own network (no weights file)."""
+    plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
+    resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}  # (= .resolved)
+    weights = None
+    if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
+        weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
+    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved}, weights)
+    return RunPlan(config=config, input_path=Path(input_path), scene=scene, source_format=full.source_format,
+                   input_views=len(full), fingerprint=fingerprint, device=device, long_side=long_side, plans=plans,
+                   keys=keys,
+                   weights="a network passed to reconstruct()" if given_model else weights_name(config),
+                   fusion_conf=config.fusion_conf if given_model else fusion_conf_for(config))
+
+
+def working_long_side(scene: Scene, config: ReconstructConfig, device: torch.device) -> int:
+    """The longer side of the working resolution: the largest that fits the memory budget and ``max_size``."""
+    budget = config.memory_gb * 2**30 if config.memory_gb else 0.5 * available_memory_bytes(device)
+    return choose_long_side([(v.width, v.height) for v in scene.views], config.num_views, config.max_size, budget)
+
+
+def plan_line(plan: RunPlan, todo: list[int]) -> str:
+    """What the run is about to do, said before the long steps: views, working size, what is left to compute
+    and the disk the depth maps will take."""
+    scene, plans, config = plan.scene, plan.plans, plan.config
+    working = config.output_resolution == "working"
+    pixels = sum((p.resized_width * p.resized_height) if working else (v.width * v.height)
+                 for v, p in zip(scene.views, plans))
+    size = f"{plans[0].resized_width}x{plans[0].resized_height}"
+    left = (f"all {len(todo)} to compute" if len(todo) == len(scene)
+            else f"{len(todo)} to compute, {len(scene) - len(todo)} done before")
+    disk = pixels * BYTES_PER_OUTPUT_PIXEL
+    return (f"plan: {len(scene)} views at {size} (working resolution), {config.num_views} views per depth map; "
+            f"{left}; the depth maps take about {_size(disk)} on disk"
+            + ("" if config.fusion == "none" else ", plus the fused cloud"))
+
+
+def _size(nbytes: float) -> str:
+    return f"{nbytes / 2**30:.1f} GB" if nbytes >= 2**30 else f"{max(1, round(nbytes / 2**20))} MB"
