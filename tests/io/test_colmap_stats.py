@@ -4,7 +4,7 @@ import numpy as np
 
 from mvsformerpp.io.colmap_model import write_model
 from mvsformerpp.io.colmap_stats import model_statistics
-from mvsformerpp.viewer.folder import sfm_outcome
+from mvsformerpp.io.output_folder import sfm_outcome
 
 from .colmap_synth import synthetic_model
 

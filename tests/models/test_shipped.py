@@ -125,7 +125,7 @@ def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
 def test_fusion_threshold_calibrated_for_the_shipped_weights(monkeypatch, tmp_path):
     import json
 
-    from mvsformerpp.inference.output_folder import recorded_calibrated_conf as shipped_weights_conf
+    from mvsformerpp.pipelines.fuse import recorded_calibrated_conf as shipped_weights_conf
     from mvsformerpp.pipelines.network import describe_fusion, fusion_conf_for
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 

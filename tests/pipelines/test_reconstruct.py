@@ -183,7 +183,7 @@ def test_refuses_an_output_folder_holding_another_scene(scene4, tmp_path):
 def test_disk_full_keeps_earlier_outputs_and_resumes(scene4, tmp_path, monkeypatch):
     import errno
 
-    from mvsformerpp.inference import output_folder
+    from mvsformerpp.io import output_folder
 
     out = tmp_path / "out"
     real = output_folder.write_pfm

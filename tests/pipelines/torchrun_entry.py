@@ -12,7 +12,7 @@ import sys
 from pathlib import Path
 
 from mvsformerpp.cli import main
-from mvsformerpp.inference.output_folder import OutputFolder
+from mvsformerpp.io.output_folder import OutputFolder
 
 rank = int(os.environ["RANK"])
 kind, *rest = (os.environ.get("FAULT") or "none").split(":")

@@ -10,8 +10,8 @@ from PIL import Image
 
 from mvsformerpp.cli import main
 from mvsformerpp.errors import InputError
+from mvsformerpp.io.output_folder import open_run
 from mvsformerpp.utils.colormap import turbo
-from mvsformerpp.viewer.folder import open_run
 from mvsformerpp.viewer.report import collect, hatch, map_thumbnail, summary_lines, write_report
 
 

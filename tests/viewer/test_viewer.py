@@ -67,9 +67,9 @@ def test_an_address_it_cannot_listen_on_is_refused_at_once(synth_run, host, matc
 
 def test_the_depth_panel_shows_what_fusion_keeps_with_a_colour_bar(synth_run):
     """The panel greys the pixels below the run's fusion threshold and carries its colour scale."""
+    from mvsformerpp.io.output_folder import open_run
     from mvsformerpp.utils.colormap import turbo
     from mvsformerpp.viewer.app import view_panels
-    from mvsformerpp.viewer.folder import open_run
     from mvsformerpp.viewer.report import fusion_threshold
 
     run = open_run(synth_run)

@@ -40,8 +40,7 @@ def run(args: argparse.Namespace) -> int:
 
     from mvsformerpp.errors import InputError
     from mvsformerpp.fusion import get_config
-    from mvsformerpp.inference.output_folder import recorded_calibrated_conf
-    from mvsformerpp.pipelines.fuse import RECORDED, fuse
+    from mvsformerpp.pipelines.fuse import RECORDED, fuse, recorded_calibrated_conf
     from mvsformerpp.utils.device import parse_device
 
     if not Path(args.folder).is_dir():

@@ -32,7 +32,7 @@ def config_from_args(args: argparse.Namespace) -> ReconstructConfig:
 
 
 def print_summary(summary: dict, out) -> None:
-    from mvsformerpp.viewer.folder import open_run
+    from mvsformerpp.io.output_folder import open_run
     from mvsformerpp.viewer.report import collect, summary_lines
 
     print("\n".join(summary_lines(collect(open_run(out)))))

@@ -19,7 +19,7 @@ def register(subparsers: argparse._SubParsersAction) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvsformerpp.viewer.folder import open_run
+    from mvsformerpp.io.output_folder import open_run
     from mvsformerpp.viewer.report import collect, summary_lines, write_report
 
     path = write_report(args.folder, args.output)

@@ -14,8 +14,8 @@ from dataclasses import dataclass
 
 import torch
 
-from mvsformerpp.inference.output_folder import OutputFolder, disk_full_guard
 from mvsformerpp.inference.runner import SceneInference
+from mvsformerpp.io.output_folder import CONFIG, VIEWS, OutputFolder, disk_full_guard
 from mvsformerpp.pipelines.run_plan import RunPlan
 from mvsformerpp.pipelines.scene_input import working_scene
 
@@ -49,8 +49,8 @@ def write_layout(folder: OutputFolder, plan: RunPlan) -> list[int]:
                 folder.write_working_image(i, v.image_path, plan.plans[i])
             else:
                 folder.link_image(i, v.image_path)
-    folder.write_json("views.json", {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
-    folder.write_json("config.json", {"config": dataclasses.asdict(config),
+    folder.write_json(VIEWS, {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
+    folder.write_json(CONFIG, {"config": dataclasses.asdict(config),
                                       "resolved": {**plan.resolved, "fusion_conf": plan.fusion_conf,
                                                    "weights": plan.weights},
                                       "scene_fingerprint": plan.fingerprint, "input": str(plan.input_path.resolve()),

@@ -30,6 +30,7 @@ import numpy as np
 import torch
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.io.output_folder import require_depth_maps
 
 
 def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:
@@ -48,10 +49,7 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
     if target.resolve() in folder.resolve().parents:
         raise InputError(f"the export target holds the reconstruction {folder}, which --overwrite would delete; "
                          "export into a folder outside it", target)
-    if not (folder / "cams").is_dir() or not (folder / "depth_est").is_dir():
-        raise InputError("no depth maps here (cams/ and depth_est/); make them with "
-                         "`mvsformerpp reconstruct INPUT -o OUT`", folder)
-    scene, depths, _, photos = load_depth_folder(folder)
+    scene, depths, _, photos = load_depth_folder(require_depth_maps(folder))
     holds = [v.image_path for v in scene.views if target.resolve() in Path(v.image_path).resolve().parents]
     if holds and target.exists():
         raise InputError(f"the export target holds the input photos ({holds[0]}), which --overwrite would delete; "

@@ -28,6 +28,7 @@ from mvsformerpp.fusion.normals import ReferenceAttributes
 from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
 from mvsformerpp.io.images import read_image
 from mvsformerpp.io.mvsnet import load_mvsnet_scene
+from mvsformerpp.io.output_folder import CLOUD
 from mvsformerpp.io.pfm import pfm_shape, read_pfm
 from mvsformerpp.io.ply import PlyStreamWriter
 from mvsformerpp.io.scene import Scene
@@ -224,7 +225,6 @@ def default_fusion_config(folder: str | Path, name: str = "normal", **overrides)
     ``conf_threshold`` override, the threshold calibrated for the shipped weights when they made its depth
     maps (its config.json says so), else the preset's."""
     from mvsformerpp.fusion import get_config
-    from mvsformerpp.inference.output_folder import recorded_calibrated_conf
 
     if overrides.get("conf_threshold") is None:
         overrides["conf_threshold"] = recorded_calibrated_conf(folder, get_config(name).method)
@@ -237,13 +237,13 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
                    max_size: int | str | None = RECORDED) -> dict:
     """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
 
-    from mvsformerpp.inference.output_folder import recorded_fusion_size
+    from mvsformerpp.io.output_folder import recorded_fusion_size
     from mvsformerpp.utils.output_guard import claim_output_file, writing
 
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("no such folder", folder)
-    out_ply = Path(out_ply) if out_ply is not None else folder / "fused.ply"
+    out_ply = Path(out_ply) if out_ply is not None else folder / CLOUD
     config = config or default_fusion_config(folder)
     if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
         raise InputError(f"--memory-gb must be a positive number of GB, got {memory_gb}")
@@ -297,19 +297,30 @@ def _fuse_streaming(folder: Path, out_ply: Path, config: FusionConfig, device: s
     return {"ply": out_ply, "points": ply.count, "seconds": seconds, "view_cache": store.stats()}
 
 
+def recorded_calibrated_conf(root: str | Path, method: str) -> float | None:
+    """The fusion threshold calibrated for the shipped weights when the run of ``root`` used them, else None."""
+    from mvsformerpp.io.output_folder import read_run_record
+    from mvsformerpp.models import shipped
+
+    record = read_run_record(root)
+    if record is None or not shipped.runs_shipped(record["config"].get("preset"), record["config"].get("checkpoint")):
+        return None
+    return shipped.calibrated_conf(method)
+
+
 def fuse_reconstruction(folder, plan, quiet: bool) -> tuple[int | None, bool]:
     """Stage 5 of ``reconstruct``: fuse the depth maps of ``folder`` (an
-    :class:`~mvsformerpp.inference.output_folder.OutputFolder`) as the run's plan (a
+    :class:`~mvsformerpp.io.output_folder.OutputFolder`) as the run's plan (a
     :class:`~mvsformerpp.pipelines.run_plan.RunPlan`) says, unless the same maps were already fused with the
     same settings. Returns the number of points (None with ``--fusion none``) and whether fusion was reused."""
-    from mvsformerpp.inference.output_folder import disk_full_guard, settings_hash
+    from mvsformerpp.io.output_folder import disk_full_guard, settings_hash
     from mvsformerpp.io.ply import ply_vertex_count
     from mvsformerpp.pipelines.network import fusion_preset
 
     config = plan.config
     if config.fusion == "none":
         return None, False
-    ply = folder.root / "fused.ply"
+    ply = folder.cloud
     max_size = plan.long_side if config.fusion_resolution == "working" else None
     state = settings_hash({"depth": plan.keys, "fusion": config.fusion, "conf": plan.fusion_conf,
                            **({"max_size": max_size} if max_size else {}),

@@ -18,6 +18,7 @@ from typing import Literal
 import numpy as np
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.io.output_folder import CLOUD, require_cloud, require_depth_maps
 from mvsformerpp.meshing.extract import Mesh
 from mvsformerpp.meshing.poisson import PoissonConfig
 from mvsformerpp.meshing.tsdf import TSDFConfig
@@ -40,17 +41,19 @@ class MeshConfig:
 def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = MeshConfig(), quiet: bool = False) -> Mesh:
     """Mesh the reconstruction in ``folder`` and write it to ``out_ply`` (binary PLY with vertex colours)."""
     from mvsformerpp.io.ply import write_ply
-    from mvsformerpp.utils.output_guard import check_replaceable
+    from mvsformerpp.utils.output_guard import claim_output_file, writing
 
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", folder)
-    check_replaceable(out_ply, (b"ply",), "PLY mesh")
-    t0 = time.perf_counter()
-    mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config)
-    if len(mesh.faces) == 0:
-        raise InputError("the mesh came out empty: the depth maps agree nowhere; check them in report.html", folder)
-    write_ply(out_ply, mesh.vertices, mesh.colors, faces=mesh.faces)
+    with claim_output_file(out_ply, b"ply", "PLY mesh"):
+        t0 = time.perf_counter()
+        mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config)
+        if len(mesh.faces) == 0:
+            raise InputError("the mesh came out empty: the depth maps agree nowhere; check them in report.html",
+                             folder)
+        with writing(out_ply):
+            write_ply(out_ply, mesh.vertices, mesh.colors, faces=mesh.faces)
     if not quiet:
         print(f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} triangles ({config.method}) in "
               f"{time.perf_counter() - t0:.1f} s -> {out_ply}")
@@ -67,13 +70,10 @@ def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
     from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL, integrate, plan_grid, scene_box, surface_box
     from mvsformerpp.pipelines.fuse import load_depth_folder
 
-    if not (folder / "cams").is_dir() or not (folder / "depth_est").is_dir():
-        raise InputError("no depth maps here (cams/ and depth_est/); make them with "
-                         "`mvsformerpp reconstruct INPUT -o OUT`", folder)
-    scene, depths, confs, images = load_depth_folder(folder)
+    scene, depths, confs, images = load_depth_folder(require_depth_maps(folder))
     views = make_views(scene, depths, confs, images, config.device)
     box, where = scene_box(views), "the depth maps"
-    cloud = folder / "fused.ply"
+    cloud = folder / CLOUD
     if cloud.is_file():  # where the confident, consistent points lie: floaters and sky do not stretch it
         from mvsformerpp.io.ply import ply_points, read_ply
 
@@ -98,10 +98,7 @@ def _poisson_mesh(folder: Path, config: MeshConfig) -> Mesh:
     from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
     from mvsformerpp.meshing.poisson import screened_poisson
 
-    ply = folder / "fused.ply"
-    if not ply.is_file():
-        raise InputError("no fused cloud (fused.ply); make it with `mvsformerpp fuse OUT` "
-                         "(or `mvsformerpp reconstruct INPUT -o OUT` with fusion on)", folder)
+    ply = require_cloud(folder)
     vertex = read_ply(ply)
     if not all(k in vertex for k in ("nx", "ny", "nz")):
         raise InputError("fused.ply has no normals (an older fusion); run `mvsformerpp fuse OUT` again to add "

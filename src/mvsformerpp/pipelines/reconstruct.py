@@ -1,7 +1,7 @@
 """``reconstruct``: photos / a COLMAP project / an MVSNet folder / a Middlebury set -> depth maps -> PLY.
 
 The run is a straight line of stages, each in a module of its own and each resumable (the output
-layout: :mod:`mvsformerpp.inference.output_folder`):
+layout: :mod:`mvsformerpp.io.output_folder`):
 
 1. :mod:`.scene_input`: the input as a checked Scene (structure from motion for a photo folder,
    undistortion for a distorted COLMAP project, the user's overrides);
@@ -22,7 +22,7 @@ from pathlib import Path
 import torch
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.inference.output_folder import OutputFolder, disk_full_guard, scene_fingerprint
+from mvsformerpp.io.output_folder import DEPTH_VIS, SUMMARY, OutputFolder, disk_full_guard, scene_fingerprint
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.pipelines.depth_maps import DepthMapsDone, compute_depth_maps, write_layout
 from mvsformerpp.pipelines.network import describe_weights
@@ -144,7 +144,7 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
         timings["fusion_reused"] = reused
     timings["fusion_s"] = time.perf_counter() - t2
     timings["total_s"] = time.perf_counter() - t0
-    config, ply = plan.config, folder.root / "fused.ply"
+    config, ply = plan.config, folder.cloud
     summary = {
         "views": len(plan.scene),
         "points": points,
@@ -158,10 +158,10 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
         "schedule": None if done.schedule is None else {k: v for k, v in done.schedule.items() if k != "order"},
         "ranks": per_rank if distributed else None,
         "outputs": {"ply": str(ply) if points is not None else None,
-                    "depth_vis": str(folder.root / "depth_vis"), "report": str(folder.root / "report.html")},
+                    "depth_vis": str(folder.root / DEPTH_VIS), "report": str(folder.report)},
     }
-    folder.write_json("summary.json", summary)
-    with disk_full_guard(folder.root / "report.html"):
+    folder.write_json(SUMMARY, summary)
+    with disk_full_guard(folder.report):
         write_report(folder.root)
     return summary
 

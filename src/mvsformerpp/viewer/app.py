@@ -18,7 +18,7 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.errors import InputError, MissingDependencyError
-from mvsformerpp.viewer.folder import RunFolder, ViewFiles, open_run
+from mvsformerpp.io.output_folder import RunFolder, ViewFiles, open_run
 
 
 @dataclass(frozen=True)

@@ -19,10 +19,10 @@ from typing import Any
 
 import numpy as np
 
+from mvsformerpp.io.output_folder import DEPTH_VIS, REPORT, RunFolder, ViewFiles, depth_range_of, open_run
 from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.colormap import colorize, depth_colors, depth_scale, kept_pixels, turbo
 from mvsformerpp.utils.output_guard import check_replaceable
-from mvsformerpp.viewer.folder import RunFolder, ViewFiles, depth_range_of, open_run
 
 THUMB_SIDE = 280
 """Longer side of the per-view thumbnails, in pixels."""
@@ -296,7 +296,7 @@ def _view_section(view: ViewFiles, stats: dict[str, Any], unit: str, threshold: 
         conf = conf if conf is not None and conf.shape == depth.shape else None
         lo, hi = stats.get("scale", (0.0, 1.0))
         img = f'<img alt="depth" src="{_data_uri(depth_thumbnail(depth, conf, threshold, (lo, hi)))}">'
-        full = None if root is None else root / "depth_vis" / f"{view.stem}.png"
+        full = None if root is None else root / DEPTH_VIS / f"{view.stem}.png"
         dropped = (' <span class="swatch grey"></span> below the fusion threshold'
                    if threshold is not None and conf is not None else "")
         panels.append(f'<div class="panel">{_link(img, full, base)}{_colorbar(lo, hi)}'
@@ -376,7 +376,7 @@ def render_report(run: RunFolder, base: Path | None = None) -> str:
 def write_report(folder: str | Path, out: str | Path | None = None) -> Path:
     """Write the report of an output folder (default ``folder/report.html``); returns its path."""
     run = open_run(folder)
-    out = Path(out) if out is not None else run.root / "report.html"
+    out = Path(out) if out is not None else run.root / REPORT
     check_replaceable(out, (b"<!DOCTYPE html",), "HTML report")
     atomic_write_text(out, render_report(run, out.resolve().parent))
     return out

@@ -6,7 +6,7 @@ import pytest
 from PIL import Image
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.inference import output_folder as of
+from mvsformerpp.io import output_folder as of
 from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.io.scene import Scene, View
 from mvsformerpp.utils.colormap import colorize, turbo

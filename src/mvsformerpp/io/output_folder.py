@@ -6,6 +6,10 @@ Layout (binding for fusion, which reads it with the MVSNet reader):
 ``config.json``, ``summary.json``, ``views.json``; plus ``progress.json`` (which views are done and with
 which settings) and ``sfm/`` when structure-from-motion ran.
 
+Everything that knows this layout is here: :class:`OutputFolder` writes it (``reconstruct``), the
+readers below (:func:`open_run`, :func:`read_run_record`, :func:`require_depth_maps`) serve ``fuse``,
+``mesh``, ``export``, ``report`` and ``view``.
+
 Every file is written to a temporary name and renamed (:mod:`mvsformerpp.utils.atomic`); a view counts
 as done only once all four of its files exist and ``progress.json`` records it with the current
 settings hash, so an interrupted run never leaves a view that looks done but is not.
@@ -20,15 +24,44 @@ import json
 import os
 import shutil
 from contextlib import contextmanager
+from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from mvsformerpp.errors import InputError, MVSFormerError
+from mvsformerpp.io.images import find_image, read_image
+from mvsformerpp.io.mvsnet import cam_files, read_cam
 from mvsformerpp.io.pfm import read_pfm, write_pfm
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 from mvsformerpp.utils.colormap import confidence_to_png, depth_to_png
+
+CAMS, IMAGES, DEPTH, CONFIDENCE = "cams", "images", "depth_est", "confidence"
+DEPTH_VIS, CONFIDENCE_VIS = "depth_vis", "confidence_vis"
+CLOUD, REPORT, CONFIG, SUMMARY, VIEWS, PROGRESS = ("fused.ply", "report.html", "config.json", "summary.json",
+                                                  "views.json", "progress.json")
+
+
+def require_depth_maps(root: str | Path) -> Path:
+    """``root`` as a folder that holds cameras and depth maps; else an :class:`InputError` saying how to make one."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", root)
+    if not (root / CAMS).is_dir() or not (root / DEPTH).is_dir():
+        raise InputError(f"no depth maps here ({CAMS}/ and {DEPTH}/); make them with "
+                         "`mvsformerpp reconstruct INPUT -o OUT`", root)
+    return root
+
+
+def require_cloud(root: str | Path) -> Path:
+    """The fused cloud of ``root``; else an :class:`InputError` saying how to make it."""
+    ply = Path(root) / CLOUD
+    if not ply.is_file():
+        raise InputError(f"no fused cloud ({CLOUD}); make it with `mvsformerpp fuse OUT` "
+                         "(or `mvsformerpp reconstruct INPUT -o OUT` with fusion on)", root)
+    return ply
 
 
 class DiskFullError(MVSFormerError):
@@ -53,7 +86,7 @@ def read_run_record(root: str | Path) -> dict | None:
     """``config.json`` of a ``reconstruct`` output folder (its settings, resolved values, scene identity), or
     None when ``root`` holds no readable one (another tool's depth maps)."""
     try:
-        record = json.loads((Path(root) / "config.json").read_text())
+        record = json.loads((Path(root) / CONFIG).read_text())
     except (OSError, ValueError):
         return None
     return record if isinstance(record, dict) and isinstance(record.get("config"), dict) else None
@@ -69,16 +102,6 @@ def recorded_fusion_size(root: str | Path) -> int | None:
     except (TypeError, KeyError, AttributeError):
         return None
     return int(size) if wanted == "working" and isinstance(size, int) else None
-
-
-def recorded_calibrated_conf(root: str | Path, method: str) -> float | None:
-    """The fusion threshold calibrated for the shipped weights when the run of ``root`` used them, else None."""
-    from mvsformerpp.models import shipped
-
-    record = read_run_record(root)
-    if record is None or not shipped.runs_shipped(record["config"].get("preset"), record["config"].get("checkpoint")):
-        return None
-    return shipped.calibrated_conf(method)
 
 
 def view_stem(i: int) -> str:
@@ -116,13 +139,21 @@ class OutputFolder:
             raise InputError("the output path exists and is not a folder; choose another -o", self.root)
         self.root.mkdir(parents=True, exist_ok=True)
         self.rank = int(rank)
-        main = self.root / "progress.json"
+        main = self.root / PROGRESS
         self.progress_path = main if self.rank == 0 else self.root / f"progress.rank{self.rank}.json"
         self.progress = self._read_json(main) or {"views": {}, "fusion": None}
         if self.rank == 0:
             self.fold_rank_progress()
         else:  # this rank's own record: only the views it writes
             self.progress = {"views": {}, "fusion": None}
+
+    @property
+    def cloud(self) -> Path:
+        return self.root / CLOUD
+
+    @property
+    def report(self) -> Path:
+        return self.root / REPORT
 
     def fold_rank_progress(self) -> None:
         """Rank 0: merge the other ranks' progress files into ``progress.json`` and remove them."""
@@ -146,15 +177,15 @@ class OutputFolder:
     def paths(self, i: int) -> dict[str, Path]:
         s = view_stem(i)
         return {
-            "depth": self.root / "depth_est" / f"{s}.pfm",
-            "confidence": self.root / "confidence" / f"{s}.pfm",
-            "depth_vis": self.root / "depth_vis" / f"{s}.png",
-            "confidence_vis": self.root / "confidence_vis" / f"{s}.png",
+            "depth": self.root / DEPTH / f"{s}.pfm",
+            "confidence": self.root / CONFIDENCE / f"{s}.pfm",
+            "depth_vis": self.root / DEPTH_VIS / f"{s}.png",
+            "confidence_vis": self.root / CONFIDENCE_VIS / f"{s}.png",
         }
 
     def check_scene(self, fingerprint: str) -> None:
         """Refuse a folder that holds the outputs of a different scene."""
-        stored = self._read_json(self.root / "config.json")
+        stored = self._read_json(self.root / CONFIG)
         if stored is not None and stored.get("scene_fingerprint") not in (None, fingerprint):
             raise InputError(
                 "this output folder holds the reconstruction of a different scene (its config.json has another "
@@ -192,7 +223,7 @@ class OutputFolder:
         self.save_progress()
 
     def fusion_done(self, state: str) -> bool:
-        return self.progress.get("fusion") == state and (self.root / "fused.ply").is_file()
+        return self.progress.get("fusion") == state and self.cloud.is_file()
 
     def mark_fusion(self, state: str) -> None:
         self.progress["fusion"] = state
@@ -216,7 +247,7 @@ class OutputFolder:
 
         from mvsformerpp.io.images import image_size, read_image
 
-        dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"
+        dst = self.root / IMAGES / f"{view_stem(i)}{src.suffix.lower()}"
         if dst.is_file() and not dst.is_symlink() and dst.stat().st_nlink == 1 and \
                 image_size(dst) == (plan.resized_width, plan.resized_height):
             return dst
@@ -228,7 +259,7 @@ class OutputFolder:
 
     def link_image(self, i: int, src: Path) -> Path:
         """``images/NNNNNNNN<ext>``: a hard link to the input photo, or a copy across file systems."""
-        dst = self.root / "images" / f"{view_stem(i)}{src.suffix.lower()}"
+        dst = self.root / IMAGES / f"{view_stem(i)}{src.suffix.lower()}"
         if dst.is_file() and (os.path.samefile(src, dst) or filecmp.cmp(src, dst, shallow=False)):
             return dst
         dst.parent.mkdir(parents=True, exist_ok=True)
@@ -245,3 +276,97 @@ class OutputFolder:
                 with atomic_open(dst, "wb") as f, open(src, "rb") as fin:
                     shutil.copyfileobj(fin, f)
         return dst
+
+
+# ------------------------------------------------------------------------------- reading, for presentation
+
+
+@dataclass
+class ViewFiles:
+    """One view of an output folder: its files and camera (paths are None when absent)."""
+
+    stem: str
+    name: str
+    image: Path | None
+    depth: Path | None
+    confidence: Path | None
+    cam: Path | None
+
+    def read_depth(self) -> np.ndarray | None:
+        return None if self.depth is None else read_pfm(self.depth)
+
+    def read_confidence(self) -> np.ndarray | None:
+        return None if self.confidence is None else read_pfm(self.confidence)
+
+    def read_image(self) -> np.ndarray | None:
+        return None if self.image is None else read_image(self.image)
+
+
+@dataclass
+class RunFolder:
+    """The parts of an output folder that the report and the viewer show."""
+
+    root: Path
+    config: dict[str, Any] = field(default_factory=dict)
+    summary: dict[str, Any] = field(default_factory=dict)
+    views: list[ViewFiles] = field(default_factory=list)
+    sfm: dict[str, Any] | None = None
+
+    @property
+    def cloud(self) -> Path | None:
+        """``fused.ply`` of the folder, if there is one."""
+        ply = self.root / CLOUD
+        return ply if ply.is_file() else None
+
+
+def _json(path: Path) -> dict[str, Any]:
+    if not path.is_file():
+        return {}
+    try:
+        return json.loads(path.read_text())
+    except (OSError, ValueError) as e:
+        raise InputError(f"cannot read {path.name} ({e})", path) from e
+
+
+def open_run(root: str | Path) -> RunFolder:
+    """Read an output folder; :class:`InputError` when it holds no reconstruction at all."""
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", root)
+    cams = cam_files(root / CAMS) if (root / CAMS).is_dir() else {}
+    if not cams:
+        raise InputError("not a reconstruct output folder (no cams/ inside); make one with "
+                         "`mvsformerpp reconstruct INPUT -o OUT`", root)
+    names = _json(root / VIEWS)
+    views = []
+    for i in sorted(cams):
+        stem = f"{i:08d}"
+        depth, conf = root / DEPTH / f"{stem}.pfm", root / CONFIDENCE / f"{stem}.pfm"
+        views.append(ViewFiles(stem=stem, name=names.get(stem, stem), image=find_image(root / IMAGES, stem),
+                               depth=depth if depth.is_file() else None,
+                               confidence=conf if conf.is_file() else None, cam=cams[i]))
+    return RunFolder(root=root, config=_json(root / CONFIG), summary=_json(root / SUMMARY),
+                     views=views, sfm=sfm_outcome(root / "sfm"))
+
+
+def sfm_outcome(sfm_dir: Path) -> dict[str, Any] | None:
+    """``sfm/report.json`` when structure-from-motion ran, else statistics of ``sfm/model``, else None."""
+    report = sfm_dir / "report.json"
+    if report.is_file():
+        return _json(report)
+    if not (sfm_dir / "model").is_dir():
+        return None
+    from mvsformerpp.io.colmap_model import read_model
+    from mvsformerpp.io.colmap_stats import model_statistics
+
+    return model_statistics(read_model(sfm_dir / "model"))
+
+
+def depth_range_of(view: ViewFiles) -> tuple[float, float] | None:
+    """The depth range of a view's camera file (the range the network searched)."""
+    if view.cam is None:
+        return None
+    cam = read_cam(view.cam)
+    if cam.depth_min is None or cam.depth_max is None:
+        return None
+    return float(cam.depth_min), float(cam.depth_max)
