@@ -276,7 +276,7 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
     plain modules' function: at an odd multiple of 32 (96x160), with bands small enough that the
     full-resolution level takes several of them, for two samples with different cameras and depth
     ranges, and under CPU bf16 autocast (compared with fp32, as bf16 rounds differently)."""
-    from mvsformerpp.models import fpn, inference, regularization
+    from mvsformerpp.models import fpn, prepared, regularization
 
     model = build_model("lite").eval()
     _randomise_batchnorm(model)
@@ -291,7 +291,7 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
     assert model.prepare_for_inference() is model
     with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "bf16"):
         fast = model(imgs, proj, dv)
-    assert inference.is_prepared(model)
+    assert prepared.is_prepared(model)
     assert len(banded) == 3 and len(decoder) == len(imgs) * imgs.shape[1]  # the prepared forms ran
     if case == "bf16":
         assert fast["depth"].dtype == torch.float32
@@ -344,7 +344,7 @@ def test_prepared_forms_are_never_stale():
     on them can notice; the prepared forms are compared with their source tensors instead. Every kind of
     change gives the output of a fresh model with the new weights, and ``train()``/``load_state_dict``
     return the model to its plain modules (training forwards and gradients as usual)."""
-    from mvsformerpp.models import inference
+    from mvsformerpp.models import prepared
 
     imgs, proj, dv = _random_batch(1, 3, 64, 96)
 
@@ -366,7 +366,7 @@ def test_prepared_forms_are_never_stale():
     for p, q in zip(model.state_dict().values(), other.state_dict().values()):  # EMA with decay 0
         p.data.copy_(q)
     assert torch.allclose(logits(model), expected, atol=tol)
-    assert not inference.is_prepared(model)  # the forms were dropped, not silently kept
+    assert not prepared.is_prepared(model)  # the forms were dropped, not silently kept
 
     model.prepare_for_inference()
     with torch.no_grad():
@@ -375,9 +375,9 @@ def test_prepared_forms_are_never_stale():
     assert torch.allclose(logits(model), logits(other), atol=tol)
 
     model.prepare_for_inference().load_state_dict(lite(13).state_dict())
-    assert not inference.is_prepared(model)
+    assert not prepared.is_prepared(model)
     model.prepare_for_inference().train()
-    assert not inference.is_prepared(model) and model.training
+    assert not prepared.is_prepared(model) and model.training
     loss = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].square().mean()
     loss.backward()
     assert model.fusions[3].cost_reg.conv1.conv.weight.grad is not None

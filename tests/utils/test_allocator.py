@@ -16,15 +16,15 @@ torch.set_num_threads(1)
 from mvsformerpp.utils.allocator import tune_allocator
 if sys.argv[1] == "tuned":
     assert tune_allocator()
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
 enc, dec = FPNEncoder(), FPNDecoder()
-net = inference.prepare(torch.nn.ModuleList([enc, dec]))
+net = prepared.prepare(torch.nn.ModuleList([enc, dec]))
 x = torch.randn(1, 3, 768, 1024)
 def faults():
     return resource.getrusage(resource.RUSAGE_SELF).ru_minflt
 counts = []
-with torch.no_grad(), inference.session(net):
+with torch.no_grad(), prepared.session(net):
     for _ in range(4):
         before = faults()
         dec(*enc(x))

@@ -21,7 +21,7 @@ from pathlib import Path
 
 from mvsformerpp.data.scenes import SceneEntry
 from mvsformerpp.errors import InputError
-from mvsformerpp.io.datasets import blended_scene_dir, load_blended_scene, load_dtu_scene
+from mvsformerpp.io.benchmarks import blended_scene_dir, load_blended_scene, load_dtu_scene
 
 LISTS = Path(__file__).resolve().parent / "lists"
 

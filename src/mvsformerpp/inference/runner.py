@@ -23,7 +23,7 @@ import torch
 from mvsformerpp.inference.feature_cache import FeatureCache
 from mvsformerpp.inference.resolution import ViewResize
 from mvsformerpp.io.scene import Scene
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 from mvsformerpp.models.inputs import normalize, stage_projections
 
 PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
@@ -57,7 +57,7 @@ class SceneInference:
     image_features=..., release_features=True)`` returns ``depth`` and ``photometric_confidence``
     ``[1,H,W]`` (the features passed are a concatenated copy made for that call, which the network may
     empty once it no longer needs them).
-    The runner prepares ``model`` for inference (:mod:`mvsformerpp.models.inference`).
+    The runner prepares ``model`` for inference (:mod:`mvsformerpp.models.prepared`).
     ``load_image(i)`` returns view ``i``'s uint8 ``[H,W,3]`` photo at its original size.
     ``cache_bytes=0`` disables the cache: ``forward`` then encodes every image of every view set.
     """
@@ -68,7 +68,7 @@ class SceneInference:
                  output_resolution: str = "original"):
         if precision not in PRECISIONS:
             raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
-        self.model = inference.prepare(model)  # eval mode with the inference forms built, once
+        self.model = prepared.prepare(model)  # eval mode with the inference forms built, once
         self.scene = scene
         self.plans = plans
         self.load_image = load_image

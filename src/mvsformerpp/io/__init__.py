@@ -3,9 +3,9 @@
 Entry point for user-given scenes: :func:`load_scene` (layout auto-detected by :func:`detect_layout`).
 """
 
+from mvsformerpp.io.benchmarks import list_dtu_scans, load_blended_scene, load_dtu_scene, load_tnt_scene
 from mvsformerpp.io.colmap import find_colmap_model, load_colmap_scene, undistort_colmap
 from mvsformerpp.io.colmap_model import ColmapModel, read_model, write_model
-from mvsformerpp.io.datasets import list_dtu_scans, load_blended_scene, load_dtu_scene, load_tnt_scene
 from mvsformerpp.io.detect import LAYOUTS, detect_layout, load_scene
 from mvsformerpp.io.images import image_size, read_image
 from mvsformerpp.io.middlebury import load_middlebury_scene, read_par, write_par

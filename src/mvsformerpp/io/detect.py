@@ -16,15 +16,15 @@ from __future__ import annotations
 from pathlib import Path
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.io.colmap import find_colmap_model, load_colmap_scene
-from mvsformerpp.io.colmap_model import model_extension
-from mvsformerpp.io.datasets import (
+from mvsformerpp.io.benchmarks import (
     blended_scene_dir,
     is_dtu_root,
     load_blended_scene,
     load_dtu_scene,
     load_tnt_scene,
 )
+from mvsformerpp.io.colmap import find_colmap_model, load_colmap_scene
+from mvsformerpp.io.colmap_model import model_extension
 from mvsformerpp.io.images import list_images
 from mvsformerpp.io.middlebury import find_par_file, load_middlebury_scene
 from mvsformerpp.io.mvsnet import DEFAULT_NUM_DEPTH, DepthFormat, cam_files, load_mvsnet_scene

@@ -10,10 +10,10 @@ from torch import nn
 from torch.utils.checkpoint import checkpoint
 
 from mvsformerpp.geometry.warping import homography_warp, projection_4x4, warp_rays
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 from mvsformerpp.models.cvt import CostVolumeTransformer
-from mvsformerpp.models.inference import fused_conv_bn
 from mvsformerpp.models.layers import ConvBnReLU
+from mvsformerpp.models.prepared import fused_conv_bn
 from mvsformerpp.models.regularization import CostRegNet, CostRegNet3D
 
 
@@ -98,8 +98,8 @@ class StageNet(nn.Module):
             D = hypotheses.shape[1]
             # Hypotheses in chunks bound the warped-feature memory (full resolution: ~0.25 GB per view).
             step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
-            inplace = inference.active()  # prepared inference: reuse buffers, no autograd to keep
-            vis_forms = inference.forms(self)
+            inplace = prepared.active()  # prepared inference: reuse buffers, no autograd to keep
+            vis_forms = prepared.forms(self)
             volume_sum, vis_sum, spare = None, 0.0, None
             for v in range(1, features.shape[1]):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())

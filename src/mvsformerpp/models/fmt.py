@@ -11,7 +11,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 from mvsformerpp.models.sva import LinearAttentionBlock
 
 
@@ -95,7 +95,7 @@ class FMTWithPathway(nn.Module):
     @staticmethod
     def _upsample_add(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         # align_corners=False here, unlike the FPN decoder (spec 3).
-        if not inference.active():
+        if not prepared.active():
             return F.interpolate(x.float(), size=y.shape[-2:], mode="bilinear") + y
         # prepared inference: channels-last (the smoothing convolutions run faster) and an in-place sum
         x = x.float().contiguous(memory_format=torch.channels_last)
@@ -119,7 +119,7 @@ class FMTWithPathway(nn.Module):
         s1 = ref[:, None] if src is None else torch.cat([ref[:, None], src.reshape(B, V - 1, *src.shape[1:])], 1)
         s1 = s1.flatten(0, 1)
         f2, f3, f4 = f2.flatten(0, 1), f3.flatten(0, 1), f4.flatten(0, 1)
-        if not inference.active():
+        if not prepared.active():
             s2, s3, s4 = self.pathway(s1, f2, f3, f4)
         else:  # image by image, each result written over its input: a much smaller working set
             from mvsformerpp.models.features import per_image

@@ -6,9 +6,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models import inference
-from mvsformerpp.models.inference import fused_conv_bn
+from mvsformerpp.models import prepared
 from mvsformerpp.models.layers import ConvBnLeakyReLU, Swish
+from mvsformerpp.models.prepared import fused_conv_bn
 
 
 class FPNEncoder(nn.Module):
@@ -30,7 +30,7 @@ class FPNEncoder(nn.Module):
         self.conv31 = ConvBnLeakyReLU(c3, c3, 3, 1, 1)
 
     def forward(self, x: torch.Tensor) -> tuple[torch.Tensor, ...]:
-        forms = inference.forms(self)
+        forms = prepared.forms(self)
         if forms is None:
             def block(name, y):
                 return getattr(self, name)(y)
@@ -90,7 +90,7 @@ class FPNDecoder(nn.Module):
         self.out3 = out_block(c3, c0, 3)
 
     def forward(self, conv01, conv11, conv21, conv31) -> list[torch.Tensor]:
-        forms = inference.forms(self)
+        forms = prepared.forms(self)
         if forms is not None:
             return self._forward_prepared(forms, conv01, conv11, conv21, conv31)
         out0 = self.out0(conv31)

@@ -10,7 +10,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 
 
 class ConvBnLeakyReLU(nn.Module):
@@ -85,7 +85,7 @@ class Mlp(nn.Module):
 def gelu_(x: torch.Tensor) -> torch.Tensor:
     """GELU (exact, erf form); in place in a prepared inference forward (:mod:`.inference`), which
     spares a large allocation per transformer block."""
-    if not inference.active():
+    if not prepared.active():
         return F.gelu(x)
     return torch.ops.aten.gelu_(x)
 
@@ -103,7 +103,7 @@ class LayerScale(nn.Module):
     def residual(self, x: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
         """x + self(branch); in a prepared inference forward in one pass (addcmul), sparing the scaled
         branch."""
-        if not inference.active():
+        if not prepared.active():
             return x + self(branch)
         return torch.addcmul(x, branch, self.gamma)
 

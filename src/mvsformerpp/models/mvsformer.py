@@ -6,7 +6,7 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 from mvsformerpp.models.config import ModelConfig
 from mvsformerpp.models.cost_volume import StageNet
 from mvsformerpp.models.cvt import frustum_coordinates
@@ -35,7 +35,7 @@ class MVSFormerPP(nn.Module):
       Volume Transformer with frustoconical positional encoding and adaptive attention scaling (CVT,
       sec. 3.3-3.4) at stage 1, 3-D U-Nets at stages 2-4.
 
-    Inference: call :meth:`prepare_for_inference` once (see :mod:`mvsformerpp.models.inference`).
+    Inference: call :meth:`prepare_for_inference` once (see :mod:`mvsformerpp.models.prepared`).
     The frustoconical positional encoding normalises its coordinates by the depth range of the whole
     batch (``depth_values.min()``/``max()``), as the reference does: a sample's stage-1 output depends
     on the other samples' depth ranges, so batch only views with the same range.
@@ -64,16 +64,16 @@ class MVSFormerPP(nn.Module):
     def prepare_for_inference(self) -> MVSFormerPP:
         """Eval mode with the inference forms built (folded BatchNorm, banded U-Nets, in-place work):
         forwards without autograd then run them. ``train()``, ``load_state_dict`` and any change of the
-        parameters drop them again (:mod:`mvsformerpp.models.inference`). Returns the model."""
-        return inference.prepare(self)
+        parameters drop them again (:mod:`mvsformerpp.models.prepared`). Returns the model."""
+        return prepared.prepare(self)
 
     def train(self, mode: bool = True) -> MVSFormerPP:
         if mode:
-            inference.release(self)
+            prepared.release(self)
         return super().train(mode)
 
     def load_state_dict(self, state_dict, strict: bool = True, assign: bool = False):
-        inference.release(self)
+        prepared.release(self)
         return super().load_state_dict(state_dict, strict=strict, assign=assign)
 
     def set_attention_backend(self, backend: str) -> None:
@@ -84,7 +84,7 @@ class MVSFormerPP(nn.Module):
 
     def encode_images(self, imgs: torch.Tensor) -> ImageFeatures:
         """Per-image work for [N, 3, H, W] ImageNet-normalised images (H, W multiples of 32)."""
-        with inference.session(self):
+        with prepared.session(self):
             return encode_images(self.vit, self.encoder, imgs, self.config.vit_rescale)
 
     def forward(self, imgs: torch.Tensor, proj_matrices: dict, depth_values: torch.Tensor,
@@ -118,7 +118,7 @@ class MVSFormerPP(nn.Module):
         B, V, _, H, W = imgs.shape
         if H % 32 or W % 32:
             raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
-        with inference.session(self):
+        with prepared.session(self):
             return self._forward(imgs, proj_matrices, depth_values, temperatures, image_features, release_features,
                                  window_guide)
 

@@ -6,9 +6,9 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models import inference
-from mvsformerpp.models.inference import fused_conv_bn
+from mvsformerpp.models import prepared
 from mvsformerpp.models.layers import ConvBnReLU3d, DeconvBnReLU3d
+from mvsformerpp.models.prepared import fused_conv_bn
 
 
 def _unet_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
@@ -39,7 +39,7 @@ class CostRegNet(nn.Module):
         self.prob = nn.Conv3d(base, 1, 3, padding=1, bias=False)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        forms = inference.forms(self)
+        forms = prepared.forms(self)
         if forms is not None and x.device.type == "cpu":
             return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
         return _unet_forward(self, x)
@@ -74,7 +74,7 @@ class CostRegNet3D(nn.Module):
         self.prob = nn.Conv3d(base, 1, 1)
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
-        forms = inference.forms(self)
+        forms = prepared.forms(self)
         if forms is not None and x.device.type == "cpu":
             return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
         return _unet_forward(self, x)
@@ -84,7 +84,7 @@ class CostRegNet3D(nn.Module):
 
 
 # ------------------------------------------------------------------------------------------------
-# Prepared inference on the CPU (see mvsformerpp.models.inference): the same function as the modules
+# Prepared inference on the CPU (see mvsformerpp.models.prepared): the same function as the modules
 # above, up to float rounding. A 3-D convolution over a volume [B, C, D, H, W] equals a 2-D convolution over the
 # channels (c, d) of its [B, C*D, H, W] view with a depth-banded weight,
 # W2[(o, d'), (c, d)] = W[o, c, d - s d' + p] (depth stride s, padding p; transposed alike), and

@@ -8,10 +8,10 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
-from mvsformerpp.models import inference
+from mvsformerpp.models import prepared
 from mvsformerpp.models.attention import linear_attention
-from mvsformerpp.models.inference import fused_conv_bn
 from mvsformerpp.models.layers import LayerScale, Mlp
+from mvsformerpp.models.prepared import fused_conv_bn
 
 
 class LinearAttention(nn.Module):
@@ -118,7 +118,7 @@ class SideViewAttention(nn.Module):
         """[N, L, C] tokens on an h x w grid -> [N, out_ch, 4h, 4w]."""
         N, _, C = tokens.shape
         x = tokens.reshape(N, hw[0], hw[1], C).permute(0, 3, 1, 2)
-        forms = inference.forms(self)
+        forms = prepared.forms(self)
         if forms is None:
             return self.upsampler1(self.upsampler0(self.proj(x)))
         for (w, b), (conv, _, _) in zip(forms, (self.proj, self.upsampler0, self.upsampler1)):

@@ -5,7 +5,7 @@ import pytest
 from PIL import Image
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.io.datasets import list_dtu_scans, load_blended_scene, load_dtu_scene, load_tnt_scene
+from mvsformerpp.io.benchmarks import list_dtu_scans, load_blended_scene, load_dtu_scene, load_tnt_scene
 from mvsformerpp.io.mvsnet import write_cam, write_pair
 from mvsformerpp.io.pfm import read_pfm, write_pfm
 
