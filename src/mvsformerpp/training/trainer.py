@@ -300,7 +300,7 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
     bad = False
     for i, (a, b) in enumerate(chunks):
         chunk = _to(_slice(batch, a, b), device)
-        sync = i == len(chunks) - 1 or not info.enabled
+        sync = i == len(chunks) - 1 or not info.distributed
         with contextlib.nullcontext() if sync else model.no_sync():
             with autocast(device, config.precision):
                 guide = window_guide(chunk, config.window_guide, guides)
