@@ -16,7 +16,7 @@ from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.utils.atomic import atomic_open
 
 
-def _num(x: float) -> str:
+def format_float(x: float) -> str:
     """Shortest text that reads back as exactly the same float."""
     return repr(float(x))
 
@@ -85,7 +85,7 @@ def format_pair(pairs: Pairs) -> str:
     lines = [str(len(pairs))]
     for ref, srcs in pairs.items():
         lines.append(str(int(ref)))
-        lines.append(" ".join([str(len(srcs))] + [f"{int(s)} {_num(sc)}" for s, sc in srcs]))
+        lines.append(" ".join([str(len(srcs))] + [f"{int(s)} {format_float(sc)}" for s, sc in srcs]))
     return "\n".join(lines) + "\n"
 
 
