@@ -20,7 +20,7 @@ import torch.nn.functional as F
 from mvsformerpp.geometry.camera import scale_intrinsics
 
 # The network downsamples by 8 and its DINOv2 branch works on 14-px patches of a resized copy; the
-# reference asks for a multiple of 64 (spec section 0 / README).
+# reference asks for image sizes that are a multiple of 64.
 MULTIPLE = 64
 # Peak working memory of one forward per canvas pixel per view (beyond the weights): about 250 bytes
 # for this implementation in fp32 on the CPU at 512x640 and 1152x1536 (bench/bench_model.py; the

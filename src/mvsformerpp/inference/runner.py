@@ -1,10 +1,10 @@
 """Adapt a :class:`~mvsformerpp.io.scene.Scene` to the network's tensors and back, view by view.
 
 For each reference view: pick ``num_views - 1`` source views from its neighbours (padded by
-repeating the first source when there are too few, as the reference test loader does, spec section
-10), resize and pad every image to the shared canvas (:mod:`.resolution`), build the per-stage
-projection matrices (slot 0: world-to-camera 4x4; slot 1: K at 1/8, 1/4, 1/2, 1 of the canvas
-resolution; spec section 0), run the model, and crop/resize the depth and the 4-stage mean
+repeating the first source when there are too few, as the reference test loader does), resize and
+pad every image to the shared canvas (:mod:`.resolution`), build the per-stage projection matrices
+(slot 0: world-to-camera 4x4; slot 1: K at 1/8, 1/4, 1/2, 1 of the canvas resolution, as the
+official loaders build them), run the model, and crop/resize the depth and the 4-stage mean
 photometric confidence back to the original image size.
 
 The per-image encoder features come from a :class:`.feature_cache.FeatureCache`, so each image is

@@ -1,4 +1,4 @@
-"""3-D U-Nets regularising the cost volumes of stages 2-4 (spec 6.2, 6.3)."""
+"""3-D U-Nets regularising the cost volumes of stages 2-4."""
 
 from __future__ import annotations
 
