@@ -28,7 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from mvsformerpp.errors import InputError, MVSFormerError
-from mvsformerpp.utils.distributed import env_rank
+from mvsformerpp.utils.distributed import RankMixin, env_rank
 
 # How long a rank waits in a collective for the others (the slowest rank may still be computing views).
 COLLECTIVE_TIMEOUT = timedelta(hours=6)
@@ -40,20 +40,12 @@ class RankFailedError(MVSFormerError):
     """Another rank of the run failed."""
 
 
-class Ranks:
+class Ranks(RankMixin):
     """One process: rank 0 of 1. Subclassed by :class:`ProcessGroupRanks` under torchrun."""
 
     rank = 0
     world_size = 1
     local_rank = 0
-
-    @property
-    def is_main(self) -> bool:
-        return self.rank == 0
-
-    @property
-    def distributed(self) -> bool:
-        return self.world_size > 1
 
     def gather(self, obj: Any) -> list[Any]:
         """``obj`` of every rank, in rank order (on every rank)."""

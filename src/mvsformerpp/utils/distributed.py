@@ -11,13 +11,11 @@ from dataclasses import dataclass
 from mvsformerpp.errors import InputError
 
 
-@dataclass(frozen=True)
-class ProcessRank:
-    """Rank of this process in the job, its rank on its node, and the number of processes."""
+class RankMixin:
+    """``is_main`` and ``distributed`` of a class that has ``rank`` and ``world_size``."""
 
     rank: int
     world_size: int
-    local_rank: int
 
     @property
     def is_main(self) -> bool:
@@ -26,6 +24,15 @@ class ProcessRank:
     @property
     def distributed(self) -> bool:
         return self.world_size > 1
+
+
+@dataclass(frozen=True)
+class ProcessRank(RankMixin):
+    """Rank of this process in the job, its rank on its node, and the number of processes."""
+
+    rank: int
+    world_size: int
+    local_rank: int
 
 
 def env_rank() -> ProcessRank:
