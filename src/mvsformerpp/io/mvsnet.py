@@ -42,8 +42,9 @@ import numpy as np
 
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import find_image, image_size
-from mvsformerpp.io.pair import Pairs, format_float, format_pair, read_pair, write_pair
+from mvsformerpp.io.pair import Pairs, format_pair, read_pair, write_pair
 from mvsformerpp.io.scene import Scene, View
+from mvsformerpp.io.text import format_float, read_text
 from mvsformerpp.io.viewselect import neighbors_from_cameras
 from mvsformerpp.utils.atomic import atomic_open
 
@@ -146,15 +147,7 @@ def read_cam(path: str | Path, depth_format: DepthFormat = "auto", num_depth: in
         raise ValueError(f"depth_format must be auto, interval, max or none, got {depth_format!r}")
     if num_depth < 2:
         raise ValueError(f"num_depth must be >= 2, got {num_depth}")
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except FileNotFoundError as e:
-        raise InputError("camera file not found", path) from e
-    except OSError as e:
-        raise FormatError(f"cannot read camera file ({e.strerror})", path) from e
-    except UnicodeDecodeError as e:
-        raise FormatError("camera file is not text (expected an MVSNet cam file)", path) from e
-    tokens = text.split()
+    tokens = read_text(path, "camera file", "camera file is not text (expected an MVSNet cam file)").split()
     lower = [t.lower() for t in tokens]
     if "extrinsic" not in lower or "intrinsic" not in lower:
         raise FormatError("not an MVSNet cam file: the 'extrinsic' and 'intrinsic' headers are missing", path)
