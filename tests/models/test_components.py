@@ -80,7 +80,7 @@ def test_adaptive_attention_scale_keeps_entropy_stable_across_lengths():
     assert max(fixed) - min(fixed) > 1.0  # the problem AAS addresses
     assert max(aas) - min(aas) < 0.1 * (max(fixed) - min(fixed))
     assert adaptive_attention_scale(16, 12185) == pytest.approx(0.25)
-    assert adaptive_attention_scale(16, 64 * 80) == pytest.approx(0.2270, abs=1e-4)  # 512x640, spec 6.1
+    assert adaptive_attention_scale(16, 64 * 80) == pytest.approx(0.2270, abs=1e-4)  # 512x640
     assert adaptive_attention_scale(16, 144 * 192) == pytest.approx(0.2718, abs=1e-4)  # 1152x1536
 
 

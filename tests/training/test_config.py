@@ -31,7 +31,7 @@ def test_recipes_follow_the_reference():
     assert (dtu.lr, dtu.warmup_steps, dtu.min_lr_ratio, dtu.epochs, dtu.batch_size) == (1e-3, 500, 0.01, 15, 16)
     assert (dtu.num_views, dtu.num_depth, dtu.interval_scale, dtu.weight_decay) == (5, 192, 1.06, 0.0)
     assert len(DTU_RESOLUTIONS) == 25 and DTU_RESOLUTIONS[0] == (512, 640) and DTU_RESOLUTIONS[-1] == (1024, 1280)
-    # the mean token count of the 25 scales is the n_train of adaptive attention scaling (spec 5)
+    # the mean token count of the 25 scales is the n_train of adaptive attention scaling
     assert sum((h // 8) * (w // 8) for h, w in DTU_RESOLUTIONS) / 25 == pytest.approx(12185.6)
     ft = RECIPES["blended_finetune"]
     assert (ft.lr, ft.min_lr_ratio, ft.epochs, ft.preset) == (1e-4, 0.005, 10, "paper_finetune")

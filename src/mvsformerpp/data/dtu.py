@@ -1,6 +1,6 @@
 """DTU and BlendedMVS training sets in their official layouts, as :class:`SceneDataset` entries.
 
-DTU (the raw-resolution training release, spec section 9)::
+DTU (the raw-resolution training release the reference trains on)::
 
     Cameras/pair.txt, Cameras/{vid:08d}_cam.txt                        K for the 1600x1200 photos
     Rectified_raw/scanN/rect_{vid+1:03d}_{light}_r5000.png             light 0..6

@@ -1,6 +1,6 @@
 """Batch sampling for training: a shuffled epoch order, one resolution per batch, one shard per rank.
 
-The reference (spec section 9) cycles consecutive batches through a list of (H, W) resolutions; each
+The reference cycles consecutive batches through a list of (H, W) resolutions; each
 batch holds ``batch_size`` samples in all (the global batch), of which every process takes its own
 ``batch_size / world_size``. The order of an epoch is a function of (seed, epoch) alone, so the
 sampler's whole state is (epoch, batches already taken): a resumed run sees the same batches.

@@ -1,4 +1,4 @@
-"""Training transforms (spec section 9): multi-scale resize and crop, photometric augmentation.
+"""Training transforms of the reference: multi-scale resize and crop, photometric augmentation.
 
 * :class:`ResizeCrop`: each sample is resized by ``s = max(clip(H e / H0, lo, 1), clip(W e / W0, lo, 1))``
   with ``e ~ U(scale_range)`` (H x W the batch's size, H0 x W0 the reference size of the data set:

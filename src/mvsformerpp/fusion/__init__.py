@@ -7,6 +7,7 @@ import torch
 
 from mvsformerpp.fusion.config import PRESETS, FusionConfig, get_config
 from mvsformerpp.fusion.core import FusionView, fuse_views, iter_fused_points
+from mvsformerpp.geometry.camera import scale_intrinsics
 from mvsformerpp.io.scene import Scene, View
 
 __all__ = ["FusionConfig", "FusionView", "PRESETS", "fuse_depth_maps", "fuse_views", "get_config",
@@ -17,15 +18,14 @@ def make_view(view: View, depth: np.ndarray, confidence: np.ndarray | None, imag
               device: str | torch.device = "cpu") -> FusionView:
     """A scene view's camera + its depth/confidence/image arrays -> :class:`FusionView` at depth resolution.
 
-    K is scaled when the depth map is smaller or larger than the image (continuous-coordinate rule
-    K' = diag(sx, sy, 1) K); the image is resized to the depth resolution for colours.
+    K is scaled when the depth map is smaller or larger than the image (continuous-coordinate rule,
+    :func:`~mvsformerpp.geometry.camera.scale_intrinsics`); the image is resized to the depth resolution for colours.
     """
     from PIL import Image
 
     depth = np.asarray(depth, dtype=np.float32)
     h, w = depth.shape
-    sx, sy = w / view.width, h / view.height
-    K = np.diag([sx, sy, 1.0]) @ view.K
+    K = scale_intrinsics(view.K, w / view.width, h / view.height)
     img = np.asarray(image)
     if img.shape[:2] != (h, w):
         img = np.asarray(Image.fromarray(img).resize((w, h), Image.BILINEAR))

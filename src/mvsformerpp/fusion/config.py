@@ -59,7 +59,7 @@ PRESETS: dict[str, FusionConfig] = {
     "normal": FusionConfig(),
     "dynamic": FusionConfig(method="dynamic", conf_threshold=0.3),
     "gipuma": FusionConfig(method="gipuma", disp_threshold=0.25, num_consistent=3, conf_threshold=0.5),
-    # The reference's settings (scripts/test.sh, test_tt_*.sh; spec section 10).
+    # The reference's settings (its scripts/test.sh and test_tt_*.sh).
     "dtu": FusionConfig(method="gipuma", conf_threshold=0.5, disp_threshold=0.1, num_consistent=2),
     "tnt_intermediate": FusionConfig(method="dynamic", conf_threshold=0.6, num_src_views=10),
     "tnt_advanced": FusionConfig(method="dynamic", conf_threshold=0.3, num_src_views=15),

@@ -1,6 +1,6 @@
-"""Depth-map fusion in PyTorch (spec section 10): the ``normal``, ``dynamic`` and ``gipuma`` filters.
+"""Depth-map fusion in PyTorch: the reference's ``normal``, ``dynamic`` and ``gipuma`` filters.
 
-Pixel convention (one for all three, fixing the reference's half-pixel mix-up, spec 14.11): pixel
+Pixel convention (one for all three, fixing the reference's half-pixel mix-up): pixel
 ``(x, y)`` covers ``[x, x+1) x [y, y+1)`` of the continuous image coordinates that K maps to, so its
 centre is ``(x + 0.5, y + 0.5)``; maps are sampled at continuous coordinates with
 ``grid_sample(align_corners=False)``, whose pixel centres sit at the same +0.5. Everything runs on the

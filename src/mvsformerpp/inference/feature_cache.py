@@ -1,6 +1,6 @@
 """A memory-bounded LRU cache of per-image network features.
 
-The per-image part of MVSFormer++ (DINOv2 tokens and FPN-encoder maps; spec sections 1-2.2) does
+The per-image part of MVSFormer++ (DINOv2 tokens and FPN-encoder maps) does
 not depend on which view is the reference, so each image is encoded once and its features are
 reused by every reference view whose source set contains it. The cache holds at most
 ``max_bytes`` of tensors; the least recently used image is evicted first.

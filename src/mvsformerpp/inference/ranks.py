@@ -19,7 +19,6 @@ The checks that make a multi-process run safe, each with one clear message:
 
 from __future__ import annotations
 
-import os
 import secrets
 import shutil
 import socket
@@ -29,6 +28,7 @@ from pathlib import Path
 from typing import Any
 
 from mvsformerpp.errors import InputError, MVSFormerError
+from mvsformerpp.utils.distributed import RankMixin, env_rank
 
 # How long a rank waits in a collective for the others (the slowest rank may still be computing views).
 COLLECTIVE_TIMEOUT = timedelta(hours=6)
@@ -40,20 +40,12 @@ class RankFailedError(MVSFormerError):
     """Another rank of the run failed."""
 
 
-class Ranks:
+class Ranks(RankMixin):
     """One process: rank 0 of 1. Subclassed by :class:`ProcessGroupRanks` under torchrun."""
 
     rank = 0
     world_size = 1
     local_rank = 0
-
-    @property
-    def is_main(self) -> bool:
-        return self.rank == 0
-
-    @property
-    def distributed(self) -> bool:
-        return self.world_size > 1
 
     def gather(self, obj: Any) -> list[Any]:
         """``obj`` of every rank, in rank order (on every rank)."""
@@ -224,13 +216,13 @@ def ranks_from_env(device: str) -> Ranks:
     ``device`` is the configured device type: ``cuda`` runs put each rank on GPU ``LOCAL_RANK`` and
     add NCCL to the group; CPU runs use gloo.
     """
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    if world <= 1:
+    env = env_rank()
+    if not env.distributed:
         return Ranks()
     import torch
     import torch.distributed as dist
 
-    rank, local_rank = int(os.environ["RANK"]), int(os.environ.get("LOCAL_RANK", "0"))
+    rank, world, local_rank = env.rank, env.world_size, env.local_rank
     backend = "gloo"
     if device.startswith("cuda"):
         torch.cuda.set_device(local_rank)

@@ -17,8 +17,10 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from mvsformerpp.geometry.camera import scale_intrinsics
+
 # The network downsamples by 8 and its DINOv2 branch works on 14-px patches of a resized copy; the
-# reference asks for a multiple of 64 (spec section 0 / README).
+# reference asks for image sizes that are a multiple of 64.
 MULTIPLE = 64
 # Peak working memory of one forward per canvas pixel per view (beyond the weights): about 250 bytes
 # for this implementation in fp32 on the CPU at 512x640 and 1152x1536 (bench/bench_model.py; the
@@ -47,10 +49,7 @@ class ViewResize:
 
     def scale_intrinsics(self, K: np.ndarray) -> np.ndarray:
         """K at the original resolution -> K on the canvas (padding is right/bottom, so no shift)."""
-        K2 = np.array(K, dtype=np.float64, copy=True)
-        K2[0, :] *= self.scale_x
-        K2[1, :] *= self.scale_y
-        return K2
+        return scale_intrinsics(K, self.scale_x, self.scale_y)
 
     def image_to_canvas(self, image: np.ndarray) -> torch.Tensor:
         """uint8 ``[H, W, 3]`` at the original size -> float ``[3, Hc, Wc]`` in [0, 1], edge-padded."""

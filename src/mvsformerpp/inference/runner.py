@@ -1,10 +1,10 @@
 """Adapt a :class:`~mvsformerpp.io.scene.Scene` to the network's tensors and back, view by view.
 
 For each reference view: pick ``num_views - 1`` source views from its neighbours (padded by
-repeating the first source when there are too few, as the reference test loader does, spec section
-10), resize and pad every image to the shared canvas (:mod:`.resolution`), build the per-stage
-projection matrices (slot 0: world-to-camera 4x4; slot 1: K at 1/8, 1/4, 1/2, 1 of the canvas
-resolution; spec section 0), run the model, and crop/resize the depth and the 4-stage mean
+repeating the first source when there are too few, as the reference test loader does), resize and
+pad every image to the shared canvas (:mod:`.resolution`), build the per-stage projection matrices
+(slot 0: world-to-camera 4x4; slot 1: K at 1/8, 1/4, 1/2, 1 of the canvas resolution, as the
+official loaders build them), run the model, and crop/resize the depth and the 4-stage mean
 photometric confidence back to the original image size.
 
 The per-image encoder features come from a :class:`.feature_cache.FeatureCache`, so each image is
@@ -13,7 +13,6 @@ encoded once per scene (while it stays in the cache) instead of once per referen
 
 from __future__ import annotations
 
-import contextlib
 from dataclasses import dataclass
 from typing import Any
 
@@ -25,8 +24,7 @@ from mvsformerpp.inference.resolution import ViewResize
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models import prepared
 from mvsformerpp.models.inputs import normalize, stage_projections
-
-PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+from mvsformerpp.utils.precision import autocast, check_precision
 
 
 @dataclass
@@ -66,8 +64,7 @@ class SceneInference:
                  num_views: int, num_depth: int = 192, temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0),
                  device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30,
                  output_resolution: str = "original"):
-        if precision not in PRECISIONS:
-            raise ValueError(f"precision must be one of {sorted(PRECISIONS)}, got {precision!r}")
+        check_precision(precision)
         self.model = prepared.prepare(model)  # eval mode with the inference forms built, once
         self.scene = scene
         self.plans = plans
@@ -84,19 +81,13 @@ class SceneInference:
         self.use_cache = cache_bytes > 0 and callable(getattr(model, "encode_images", None))
         self.cache = FeatureCache(self._encode, cache_bytes)
 
-    def _autocast(self):
-        dtype = PRECISIONS[self.precision]
-        if dtype is None:
-            return contextlib.nullcontext()
-        return torch.autocast(device_type=self.device.type, dtype=dtype)
-
     def canvas_image(self, i: int) -> torch.Tensor:
         """View ``i`` resized, padded and normalised: ``[3, Hc, Wc]`` on the device."""
         return normalize(self.plans[i].image_to_canvas(self.load_image(i))).to(self.device)
 
     @torch.no_grad()
     def _encode(self, i: int) -> Any:
-        with self._autocast():
+        with autocast(self.device, self.precision):
             return self.model.encode_images(self.canvas_image(i)[None])
 
     def view_set(self, ref: int) -> list[int]:
@@ -138,7 +129,7 @@ class SceneInference:
         depth_values = torch.linspace(ref_view.depth_min, ref_view.depth_max, self.num_depth,
                                       dtype=torch.float32, device=self.device)[None]
         feats = self.cache.get_many(ids) if self.use_cache else None
-        with self._autocast():
+        with autocast(self.device, self.precision):
             out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
                              release_features=feats is not None)
         plan = self.plans[ref]

@@ -155,7 +155,8 @@ def _text_lines(path: Path) -> list[tuple[int, str]]:
     return [(i + 1, ln.strip()) for i, ln in enumerate(text.splitlines())]
 
 
-def _num(tok: str, path: Path, lineno: int, kind=float):
+def _parse_number(tok: str, path: Path, lineno: int, kind: type = float):
+    """``kind(tok)``, finite (floats) or within int64 (ints); else FormatError naming the line."""
     try:
         v = kind(tok)
     except ValueError as e:
@@ -180,7 +181,7 @@ def _floats_fast(tokens: list[str], path: Path, lineno: int) -> np.ndarray:
     try:
         arr = np.array(tokens, dtype=np.float64)
     except (ValueError, OverflowError):
-        arr = np.array([_num(t, path, lineno) for t in tokens], dtype=np.float64)
+        arr = np.array([_parse_number(t, path, lineno) for t in tokens], dtype=np.float64)
     if not np.all(np.isfinite(arr)):
         raise FormatError(f"line {lineno}: non-finite number", path)
     return arr
@@ -190,7 +191,7 @@ def _ints_fast(tokens: list[str], path: Path, lineno: int) -> np.ndarray:
     try:
         return np.array([int(t) for t in tokens], dtype=np.int64)
     except (ValueError, OverflowError):
-        return np.array([_num(t, path, lineno, int) for t in tokens], dtype=np.int64)
+        return np.array([_parse_number(t, path, lineno, int) for t in tokens], dtype=np.int64)
 
 
 def _camera(cid: int, model: str, width: int, height: int, params: list[float], path: Path, where: str):
@@ -216,10 +217,10 @@ def read_cameras_text(path: str | Path) -> dict[int, ColmapCamera]:
         tok = ln.split()
         if len(tok) < 4:
             raise FormatError(f"line {n}: expected 'CAMERA_ID MODEL WIDTH HEIGHT PARAMS...'", path)
-        cid = _num(tok[0], path, n, int)
-        params = [_num(t, path, n) for t in tok[4:]]
-        cams[cid] = _camera(cid, tok[1], _num(tok[2], path, n, int), _num(tok[3], path, n, int), params, path,
-                            f"line {n}")
+        cid = _parse_number(tok[0], path, n, int)
+        params = [_parse_number(t, path, n) for t in tok[4:]]
+        width, height = _parse_number(tok[2], path, n, int), _parse_number(tok[3], path, n, int)
+        cams[cid] = _camera(cid, tok[1], width, height, params, path, f"line {n}")
     return cams
 
 
@@ -236,12 +237,12 @@ def read_images_text(path: str | Path) -> dict[int, ColmapImage]:
         tok = ln.split(maxsplit=9)
         if len(tok) < 10:
             raise FormatError(f"line {n}: expected 'IMAGE_ID QW QX QY QZ TX TY TZ CAMERA_ID NAME'", path)
-        iid = _num(tok[0], path, n, int)
-        q = np.array([_num(t, path, n) for t in tok[1:5]])
+        iid = _parse_number(tok[0], path, n, int)
+        q = np.array([_parse_number(t, path, n) for t in tok[1:5]])
         if np.linalg.norm(q) < 1e-12:
             raise FormatError(f"line {n}: image {iid} has a zero quaternion", path)
-        t = np.array([_num(t, path, n) for t in tok[5:8]])
-        cam_id = _num(tok[8], path, n, int)
+        t = np.array([_parse_number(t, path, n) for t in tok[5:8]])
+        cam_id = _parse_number(tok[8], path, n, int)
         pts = lines[i + 1][1].split() if i + 1 < len(lines) else []
         pn = lines[i + 1][0] if i + 1 < len(lines) else n
         if len(pts) >= 10 and not _is_number(pts[-1]):
@@ -266,13 +267,13 @@ def read_points3D_text(path: str | Path) -> dict[int, ColmapPoint3D]:
         tok = ln.split()
         if len(tok) < 8 or (len(tok) - 8) % 2:
             raise FormatError(f"line {n}: expected 'POINT3D_ID X Y Z R G B ERROR (IMAGE_ID POINT2D_IDX)...'", path)
-        pid = _num(tok[0], path, n, int)
-        xyz = np.array([_num(t, path, n) for t in tok[1:4]])
-        rgb = np.array([_num(t, path, n, int) for t in tok[4:7]])
+        pid = _parse_number(tok[0], path, n, int)
+        xyz = np.array([_parse_number(t, path, n) for t in tok[1:4]])
+        rgb = np.array([_parse_number(t, path, n, int) for t in tok[4:7]])
         if np.any((rgb < 0) | (rgb > 255)):
             raise FormatError(f"line {n}: colour {rgb.tolist()} is outside 0..255", path)
         track = _ints_fast(tok[8:], path, n).reshape(-1, 2)
-        pts[pid] = ColmapPoint3D(pid, xyz, rgb.astype(np.uint8), _num(tok[7], path, n), track[:, 0].copy(),
+        pts[pid] = ColmapPoint3D(pid, xyz, rgb.astype(np.uint8), _parse_number(tok[7], path, n), track[:, 0].copy(),
                                  track[:, 1].copy())
     return pts
 

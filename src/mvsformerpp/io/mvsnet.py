@@ -44,6 +44,7 @@ from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import find_image, image_size
 from mvsformerpp.io.pair import Pairs, format_pair, read_pair, write_pair
 from mvsformerpp.io.scene import Scene, View
+from mvsformerpp.io.text import format_float, read_text
 from mvsformerpp.io.viewselect import neighbors_from_cameras
 from mvsformerpp.utils.atomic import atomic_open
 
@@ -146,15 +147,7 @@ def read_cam(path: str | Path, depth_format: DepthFormat = "auto", num_depth: in
         raise ValueError(f"depth_format must be auto, interval, max or none, got {depth_format!r}")
     if num_depth < 2:
         raise ValueError(f"num_depth must be >= 2, got {num_depth}")
-    try:
-        text = path.read_bytes().decode("utf-8-sig")
-    except FileNotFoundError as e:
-        raise InputError("camera file not found", path) from e
-    except OSError as e:
-        raise FormatError(f"cannot read camera file ({e.strerror})", path) from e
-    except UnicodeDecodeError as e:
-        raise FormatError("camera file is not text (expected an MVSNet cam file)", path) from e
-    tokens = text.split()
+    tokens = read_text(path, "camera file", "camera file is not text (expected an MVSNet cam file)").split()
     lower = [t.lower() for t in tokens]
     if "extrinsic" not in lower or "intrinsic" not in lower:
         raise FormatError("not an MVSNet cam file: the 'extrinsic' and 'intrinsic' headers are missing", path)
@@ -201,24 +194,19 @@ def depth_line_forms(cam_dir: str | Path, depth_format: DepthFormat = "auto") ->
     return dict(forms.most_common())
 
 
-def _num(x: float) -> str:
-    """Shortest text that reads back as exactly the same float."""
-    return repr(float(x))
-
-
 def format_cam(cam: MVSNetCam, num_depth: int = DEFAULT_NUM_DEPTH) -> str:
     """The cam file text, 4-number depth line ``MIN INTERVAL NUM MAX`` (omitted without a depth range)."""
     E = np.asarray(cam.extrinsic, dtype=np.float64).reshape(4, 4)
     K = np.asarray(cam.K, dtype=np.float64).reshape(3, 3)
     lines = ["extrinsic"]
-    lines += [" ".join(_num(v) for v in row) for row in E]
+    lines += [" ".join(format_float(v) for v in row) for row in E]
     lines += ["", "intrinsic"]
-    lines += [" ".join(_num(v) for v in row) for row in K]
+    lines += [" ".join(format_float(v) for v in row) for row in K]
     lines.append("")
     if cam.depth_min is not None and cam.depth_max is not None:
         n = cam.num_depth or num_depth
         interval = (cam.depth_max - cam.depth_min) / (n - 1)
-        lines.append(f"{_num(cam.depth_min)} {_num(interval)} {n} {_num(cam.depth_max)}")
+        lines.append(f"{format_float(cam.depth_min)} {format_float(interval)} {n} {format_float(cam.depth_max)}")
     return "\n".join(lines) + "\n"
 
 

@@ -12,14 +12,9 @@ from __future__ import annotations
 import math
 from pathlib import Path
 
-from mvsformerpp.errors import FormatError, InputError
+from mvsformerpp.errors import FormatError
+from mvsformerpp.io.text import format_float, read_text
 from mvsformerpp.utils.atomic import atomic_open
-
-
-def _num(x: float) -> str:
-    """Shortest text that reads back as exactly the same float."""
-    return repr(float(x))
-
 
 Pairs = dict[int, list[tuple[int, float]]]
 
@@ -27,14 +22,7 @@ Pairs = dict[int, list[tuple[int, float]]]
 def read_pair(path: str | Path) -> Pairs:
     """Read pair.txt as ``{ref_id: [(src_id, score), ...]}`` in file order (best first by convention)."""
     path = Path(path)
-    try:
-        tokens = path.read_bytes().decode("utf-8-sig").split()
-    except FileNotFoundError as e:
-        raise InputError("pair file not found", path) from e
-    except OSError as e:
-        raise FormatError(f"cannot read pair file ({e.strerror})", path) from e
-    except UnicodeDecodeError as e:
-        raise FormatError("pair file is not text", path) from e
+    tokens = read_text(path, "pair file").split()
     pos = 0
 
     def take(what: str) -> str:
@@ -85,7 +73,7 @@ def format_pair(pairs: Pairs) -> str:
     lines = [str(len(pairs))]
     for ref, srcs in pairs.items():
         lines.append(str(int(ref)))
-        lines.append(" ".join([str(len(srcs))] + [f"{int(s)} {_num(sc)}" for s, sc in srcs]))
+        lines.append(" ".join([str(len(srcs))] + [f"{int(s)} {format_float(sc)}" for s, sc in srcs]))
     return "\n".join(lines) + "\n"
 
 

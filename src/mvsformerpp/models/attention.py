@@ -4,7 +4,7 @@
   ``scaled_dot_product_attention``, the default), ``"flash"`` (FlashAttention-2, CUDA with fp16/bf16,
   used when the ``flash_attn`` package imports) and ``"eager"`` (the textbook formula, a reference).
   ``"auto"`` picks flash where it can run and SDPA elsewhere.
-* Linear attention (Side View Attention, spec 2.3 and 3): phi(u) = elu(u) + 1, always in fp32.
+* Linear attention (Side View Attention and FMT): phi(u) = elu(u) + 1, always in fp32.
 """
 
 from __future__ import annotations

@@ -63,7 +63,7 @@ class ModelConfig:
 PRESETS: dict[str, ModelConfig] = {
     "paper": ModelConfig(),
     # BlendedMVS+DTU fine-tuning (mvsformer++_ft.json): the same network and weights layout. Its loss
-    # supervises stage 4 only (the reference's ce_loss returns the last stage, spec 8 and 14.2); the
+    # supervises stage 4 only (the reference's ce_loss returns the last stage's loss); the
     # training recipe blended_finetune overrides this with all four stages unless loss_weights is null.
     "paper_finetune": ModelConfig(loss_weights=(0.0, 0.0, 0.0, 1.0)),
     # Same architecture, much smaller ViT and SVA, trainable backbone (no pretrained weights exist).

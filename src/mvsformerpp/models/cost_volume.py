@@ -1,5 +1,5 @@
-"""Per-stage cost volume (spec 5): homography warping, group-wise correlation, entropy-based visibility
-weighting of the source views; then regularisation and the depth head (spec 6, 7).
+"""Per-stage cost volume: homography warping, group-wise correlation, entropy-based visibility
+weighting of the source views; then regularisation and the depth head.
 """
 
 from __future__ import annotations
@@ -45,7 +45,7 @@ def visibility_net() -> nn.Sequential:
 
 
 def depth_from_logits(logits: torch.Tensor, hypotheses: torch.Tensor, temperature: float | None):
-    """Depth and confidence from [B,D,H,W] logits (spec 7).
+    """Depth and confidence from [B,D,H,W] logits.
 
     temperature None: argmax hypothesis (training); else sum_k softmax(t * logits)_k d_k.
     Confidence = max_k softmax(logits)_k (no temperature).

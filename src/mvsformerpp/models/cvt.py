@@ -1,4 +1,4 @@
-"""Cost Volume Transformer at stage 1 (paper sec. 3.3; spec 6.1): frustoconical positional encoding,
+"""Cost Volume Transformer at stage 1 (paper sec. 3.3): frustoconical positional encoding,
 patchify (2,4,4), Post-LN transformer blocks with adaptive attention scaling, unpatchify.
 """
 
@@ -12,7 +12,7 @@ from torch import nn
 from mvsformerpp.models.attention import softmax_attention
 from mvsformerpp.models.layers import LayerNorm3D, gelu_
 
-# Mean stage-1 token count over the 25 training scales (spec 6.1); the reference truncates 12185.6.
+# Mean stage-1 token count over the reference's 25 training scales; the reference truncates 12185.6.
 TRAIN_AVG_TOKENS = 12185
 
 
@@ -23,7 +23,7 @@ def adaptive_attention_scale(head_dim: int, num_tokens: int, train_avg_tokens: i
 
 def frustum_coordinates(K: torch.Tensor, hypotheses: torch.Tensor, depth_min: torch.Tensor,
                         depth_max: torch.Tensor) -> torch.Tensor:
-    """Normalised camera-frame coordinates of every (hypothesis, pixel) of the stage-1 volume (FPE, spec 6.1).
+    """Normalised camera-frame coordinates of every (hypothesis, pixel) of the stage-1 volume (FPE).
 
     K: [B,3,3] stage-1 intrinsics; hypotheses: [B,D,H,W]. P = K^-1 [x,y,1]^T d for integer pixels;
     X and Y min-max normalised over the whole tensor (all samples), Z clamped to [dmin, dmax] and

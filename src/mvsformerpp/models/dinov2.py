@@ -1,6 +1,6 @@
 """DINOv2 ViT backbone (Oquab et al. 2023), built so that Meta's ``dinov2_vitb14_pretrain.pth`` loads
-1:1 under the ``vit.`` prefix (spec 2.1): 1 cls token, no register tokens, LayerScale per block,
-LN eps 1e-6, a 37x37 learned positional embedding interpolated to the input's token grid.
+1:1 under the ``vit.`` prefix, as in the official code: 1 cls token, no register tokens, LayerScale
+per block, LN eps 1e-6, a 37x37 learned positional embedding interpolated to the input's token grid.
 """
 
 from __future__ import annotations
@@ -57,7 +57,7 @@ class Block(nn.Module):
 
 
 class DinoVisionTransformer(nn.Module):
-    """ViT with DINOv2's parameter names; ``forward_taps`` returns the three SVA inputs (spec 2.2)."""
+    """ViT with DINOv2's parameter names; ``forward_taps`` returns the three SVA inputs."""
 
     def __init__(
         self,
@@ -85,7 +85,7 @@ class DinoVisionTransformer(nn.Module):
         """Positional embedding for an h x w token grid.
 
         Bicubic resampling of the square grid with DINOv2's ``scale_factor=(h + 0.1)/grid`` form (not
-        ``size=``): the two differ in the last bits, and the reference uses this one (spec 2.1).
+        ``size=``): the two differ in the last bits, and the reference uses this one.
         """
         n = self.pos_embed.shape[1] - 1
         grid = int(math.sqrt(n))

@@ -60,7 +60,7 @@ def _memory_format(t: torch.Tensor) -> torch.memory_format:
 
 
 def vit_input_size(H: int, W: int, rescale: float = 0.4375, patch: int = 14) -> tuple[int, int]:
-    """DINOv2 input size: H*rescale and W*rescale floored to the patch size (spec 2.1)."""
+    """DINOv2 input size: H*rescale and W*rescale floored to the patch size (the reference's rule)."""
     return int(H * rescale // patch * patch), int(W * rescale // patch * patch)
 
 
@@ -90,7 +90,7 @@ def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: Ima
     """SVA on the DINOv2 tokens of each sample's views, added to conv31, then the FPN decoder:
     4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1). ``feats`` holds B*V images in
     batch-major order (view 0 of each sample is its reference). Every sample uses its own DINOv2
-    features (the reference gives all samples sample 0's in eval mode, spec 14.1)."""
+    features (the reference gives all samples sample 0's in eval mode)."""
     taps = [t.reshape(B, V, *t.shape[1:]) for t in feats.vit_taps]
     vit_feat = decoder_vit(taps, feats.vit_hw)  # [B*V, 64, 4h, 4w]
     conv01, conv11, conv21, conv31 = feats.fpn

@@ -1,4 +1,4 @@
-"""SVA part 2 on the 1/8 features (the reference's ``FMT_with_pathway``, spec 3): a normalised 2-D sine
+"""SVA part 2 on the 1/8 features (the reference's ``FMT_with_pathway``): a normalised 2-D sine
 positional encoding, linear-attention self/cross layers (source views attend to the reference) and a
 top-down pathway that carries the result to the 1/4, 1/2 and 1/1 features.
 """
@@ -94,7 +94,7 @@ class FMTWithPathway(nn.Module):
 
     @staticmethod
     def _upsample_add(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
-        # align_corners=False here, unlike the FPN decoder (spec 3).
+        # align_corners=False here, unlike the FPN decoder (as the official code does).
         if not prepared.active():
             return F.interpolate(x.float(), size=y.shape[-2:], mode="bilinear") + y
         # prepared inference: channels-last (the smoothing convolutions run faster) and an in-place sum
@@ -102,7 +102,7 @@ class FMTWithPathway(nn.Module):
         return F.interpolate(x, size=y.shape[-2:], mode="bilinear").add_(y)
 
     def pathway(self, s1, f2, f3, f4):
-        """Carry refined stage-1 features down to the finer stages (spec 3)."""
+        """Carry refined stage-1 features down to the finer stages."""
         s2 = self.smooth_1(self._upsample_add(self.dim_reduction_1(s1), f2))
         s3 = self.smooth_2(self._upsample_add(self.dim_reduction_2(s2), f3))
         s4 = self.smooth_3(self._upsample_add(self.dim_reduction_3(s3), f4))

@@ -1,4 +1,4 @@
-"""CNN feature pyramid (spec 1): an encoder down to 1/8 and a decoder back to full resolution."""
+"""CNN feature pyramid: an encoder down to 1/8 and a decoder back to full resolution."""
 
 from __future__ import annotations
 
@@ -67,12 +67,12 @@ def _out_block_cl(x: torch.Tensor, wb: tuple, block: nn.Sequential) -> torch.Ten
 
 
 def _up2(x: torch.Tensor) -> torch.Tensor:
-    # The reference upsamples in fp32 with align_corners=True here (spec 12).
+    # The reference upsamples in fp32 with align_corners=True here.
     return F.interpolate(x.float(), scale_factor=2, mode="bilinear", align_corners=True)
 
 
 class FPNDecoder(nn.Module):
-    """Top-down pathway: per-stage features with c3, c2, c1, c0 channels at 1/8 ... 1/1 (spec 1)."""
+    """Top-down pathway: per-stage features with c3, c2, c1, c0 channels at 1/8 ... 1/1."""
 
     def __init__(self, feat_chs=(8, 16, 32, 64)):
         super().__init__()

@@ -1,4 +1,4 @@
-"""Inverse-depth hypotheses of the cascade (spec 4): uniform in 1/d, ordered far -> near."""
+"""Inverse-depth hypotheses of the cascade: uniform in 1/d, ordered far -> near."""
 
 from __future__ import annotations
 
@@ -30,9 +30,9 @@ def refined_hypotheses(depth: torch.Tensor, prev_hypotheses: torch.Tensor, num: 
 
     The half-width is ``ratio`` times the previous stage's inverse-depth step (1/d_2 - 1/d_1).
     ``min_inverse`` [B] (typically 1/(10 dmax)) keeps every inverse hypothesis positive: the
-    reference has no such clamp and produces negative or huge depths for wide depth ranges
-    (spec 14.7). The window is shifted up, keeping its width, only where it would cross the bound,
-    so ordinary ranges are untouched.
+    reference has no such clamp and produces negative or huge depths for wide depth ranges. The
+    window is shifted up, keeping its width, only where it would cross the bound, so ordinary ranges
+    are untouched.
     """
     step = plane_step(prev_hypotheses)
     inv_near = 1.0 / depth + ratio * step

@@ -1,4 +1,5 @@
-"""The network's input conventions (spec section 0): image normalisation and per-stage projections.
+"""The network's input conventions (those of the official loaders): image normalisation and per-stage
+projections.
 
 Shared by inference (a Scene's views) and training (dataset samples), so both feed the network the
 same tensors.
@@ -9,10 +10,10 @@ from __future__ import annotations
 import numpy as np
 import torch
 
-# ImageNet statistics: every official loader normalises RGB in [0, 1] with these (spec section 0).
+# ImageNet statistics: every official loader normalises RGB in [0, 1] with these.
 IMAGENET_MEAN = (0.485, 0.456, 0.406)
 IMAGENET_STD = (0.229, 0.224, 0.225)
-# Stage resolutions relative to the input: 1/8, 1/4, 1/2, 1 (spec sections 0 and 4).
+# Stage resolutions relative to the input: 1/8, 1/4, 1/2, 1.
 STAGE_SCALES = {"stage1": 0.125, "stage2": 0.25, "stage3": 0.5, "stage4": 1.0}
 
 

@@ -14,7 +14,7 @@ from mvsformerpp.models import prepared
 
 
 class ConvBnLeakyReLU(nn.Module):
-    """Conv2d (no bias) -> BatchNorm2d -> LeakyReLU(0.1): the FPN encoder block (spec 1)."""
+    """Conv2d (no bias) -> BatchNorm2d -> LeakyReLU(0.1): the FPN encoder block."""
 
     def __init__(self, cin: int, cout: int, kernel: int, stride: int = 1, padding: int = 0):
         super().__init__()
@@ -26,7 +26,7 @@ class ConvBnLeakyReLU(nn.Module):
 
 
 class ConvBnReLU(nn.Module):
-    """Conv2d 3x3 (no bias) -> BatchNorm2d -> ReLU (visibility networks, spec 5)."""
+    """Conv2d 3x3 (no bias) -> BatchNorm2d -> ReLU (visibility networks)."""
 
     def __init__(self, cin: int, cout: int, kernel: int = 3, stride: int = 1, padding: int = 1):
         super().__init__()
@@ -38,7 +38,7 @@ class ConvBnReLU(nn.Module):
 
 
 class ConvBnReLU3d(nn.Module):
-    """Conv3d (no bias) -> BatchNorm3d -> ReLU (3-D U-Nets, spec 6.2/6.3)."""
+    """Conv3d (no bias) -> BatchNorm3d -> ReLU (3-D U-Nets)."""
 
     def __init__(self, cin: int, cout: int, kernel: int = 3, stride=1, padding: int = 1):
         super().__init__()
@@ -50,7 +50,7 @@ class ConvBnReLU3d(nn.Module):
 
 
 class DeconvBnReLU3d(nn.Module):
-    """ConvTranspose3d (no bias) -> BatchNorm3d -> ReLU (stage-2 U-Net decoder, spec 6.2)."""
+    """ConvTranspose3d (no bias) -> BatchNorm3d -> ReLU (stage-2 U-Net decoder)."""
 
     def __init__(self, cin: int, cout: int, kernel: int = 3, stride=2, padding: int = 1, output_padding=1):
         super().__init__()
@@ -109,7 +109,7 @@ class LayerScale(nn.Module):
 
 
 class LayerNorm3D(nn.Module):
-    """Channel-wise LayerNorm of a [B, C, D, H, W] volume (CVT patchify/unpatchify, spec 6.1)."""
+    """Channel-wise LayerNorm of a [B, C, D, H, W] volume (CVT patchify/unpatchify)."""
 
     def __init__(self, channels: int, eps: float = 1e-6):
         super().__init__()

@@ -1,4 +1,4 @@
-"""Per-stage cross-entropy loss over depth bins (spec 8)."""
+"""Per-stage cross-entropy loss over depth bins."""
 
 from __future__ import annotations
 
@@ -13,7 +13,7 @@ def stage_ce_loss(logits: torch.Tensor, hypotheses: torch.Tensor, depth_gt: torc
     Hypotheses are flipped to ascending depth (inverse sampling gives descending); bins are bounded
     by mid-points, the first/last extended by half a gap; pixels outside the bins or masked out are
     ignored. A stage with no valid pixel gives a zero loss that still has a gradient path (the
-    reference returns NaN, spec 14.8).
+    reference returns NaN).
     """
     d = torch.flip(hypotheses, dims=[1])
     logits = torch.flip(logits.float(), dims=[1])

@@ -24,7 +24,7 @@ class MVSFormerPP(nn.Module):
     The attributes and the paper's components (Cao, Ren, Fu, ICLR 2024):
 
     * ``vit``: the frozen DINOv2 ViT-B/14 backbone (paper sec. 3.1); ``encode_images`` runs it and the
-      ``encoder``, the CNN feature pyramid (FPN) down to 1/8 (sec. 3.1, spec 1).
+      ``encoder``, the CNN feature pyramid (FPN) down to 1/8 (sec. 3.1).
     * ``decoder_vit``: Side View Attention (SVA, sec. 3.2) on the DINOv2 tokens, the reference's
       ``CrossVITDecoder`` (:class:`~mvsformerpp.models.sva.SideViewAttention`), added to the 1/8 map.
     * ``decoder``: the FPN's top-down pathway: per-stage features at 1/8, 1/4, 1/2, 1/1.

@@ -1,4 +1,4 @@
-"""3-D U-Nets regularising the cost volumes of stages 2-4 (spec 6.2, 6.3)."""
+"""3-D U-Nets regularising the cost volumes of stages 2-4."""
 
 from __future__ import annotations
 
@@ -22,7 +22,20 @@ def _unet_forward(net: nn.Module, x: torch.Tensor) -> torch.Tensor:
     return net.prob(y)
 
 
-class CostRegNet(nn.Module):
+class _UNet3d(nn.Module):
+    """A cost-volume U-Net (levels ``conv1`` .. ``conv11``, ``prob``) run by :func:`_unet_forward`."""
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        forms = prepared.forms(self)
+        if forms is not None and x.device.type == "cpu":
+            return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
+        return _unet_forward(self, x)
+
+    def build_inference_forms(self) -> dict:
+        return _unet_forms(self)
+
+
+class CostRegNet(_UNet3d):
     """Stage 2: U-Net with stride 2 in depth and space; logits [B, 1, D, H, W]."""
 
     def __init__(self, cin: int = 8, base: int = 8):
@@ -38,15 +51,6 @@ class CostRegNet(nn.Module):
         self.conv11 = DeconvBnReLU3d(base * 2, base)
         self.prob = nn.Conv3d(base, 1, 3, padding=1, bias=False)
 
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        forms = prepared.forms(self)
-        if forms is not None and x.device.type == "cpu":
-            return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
-        return _unet_forward(self, x)
-
-    def build_inference_forms(self) -> dict:
-        return _unet_forms(self)
-
 
 def _deconv_hw(cin: int, cout: int) -> nn.Sequential:
     return nn.Sequential(
@@ -56,7 +60,7 @@ def _deconv_hw(cin: int, cout: int) -> nn.Sequential:
     )
 
 
-class CostRegNet3D(nn.Module):
+class CostRegNet3D(_UNet3d):
     """Stages 3-4: U-Net that keeps the depth axis (stride (1,2,2)); logits [B, 1, D, H, W]."""
 
     def __init__(self, cin: int = 8, base: int = 8):
@@ -72,15 +76,6 @@ class CostRegNet3D(nn.Module):
         self.conv9 = _deconv_hw(base * 4, base * 2)
         self.conv11 = _deconv_hw(base * 2, base)
         self.prob = nn.Conv3d(base, 1, 1)
-
-    def forward(self, x: torch.Tensor) -> torch.Tensor:
-        forms = prepared.forms(self)
-        if forms is not None and x.device.type == "cpu":
-            return _unet_banded(self, forms, x)  # the same function, faster on CPU (see below)
-        return _unet_forward(self, x)
-
-    def build_inference_forms(self) -> dict:
-        return _unet_forms(self)
 
 
 # ------------------------------------------------------------------------------------------------

@@ -1,4 +1,4 @@
-"""Side View Attention (paper sec. 3.2; spec 2.3, 2.4): linear-attention transformer blocks that let each
+"""Side View Attention (paper sec. 3.2): linear-attention transformer blocks that let each
 source view attend to the reference view, on the DINOv2 tokens, then a projection/upsampler to 1/8.
 """
 
@@ -42,7 +42,7 @@ class LinearAttentionBlock(nn.Module):
     """Pre-LN block: x += ls1 * Attn(LN1(x), k, v); x += ls2 * MLP(LN2(x)).
 
     ``norm_kv``: keys/values of cross-attention also go through LN1 (FMT) or enter raw (SVA on
-    DINOv2 tokens, the reference's ``pre_norm_query``), spec 12.
+    DINOv2 tokens, the reference's ``pre_norm_query``), as the official code does.
     """
 
     def __init__(self, dim: int, num_heads: int, mlp_ratio: float = 4.0, norm_kv: bool = False):

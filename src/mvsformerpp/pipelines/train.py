@@ -8,7 +8,6 @@ fields in ``RESUMABLE_CHANGES``, which do not touch the trajectory).
 
 from __future__ import annotations
 
-import os
 from pathlib import Path
 
 import yaml
@@ -16,6 +15,7 @@ import yaml
 from mvsformerpp.errors import InputError
 from mvsformerpp.training.config import TrainConfig, config_differences, dump_config
 from mvsformerpp.utils.atomic import atomic_write_text
+from mvsformerpp.utils.distributed import env_rank
 
 
 def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
@@ -35,7 +35,7 @@ def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
     elif has_checkpoint:
         raise InputError("this folder already holds a training run; continue it with --resume or choose "
                          "another folder", run_dir)
-    if int(os.environ.get("RANK", "0")) == 0:
+    if env_rank().is_main:
         atomic_write_text(cfg_path, dump_config(config))
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvsformerpp.synth.photos import sample_texture
+from mvsformerpp.synth.photos import LEVELS, sample_texture
 from mvsformerpp.synth.shapes import may_hit
 from mvsformerpp.synth.textures import albedo
 
@@ -147,8 +147,6 @@ def detail_factor(scene: SynthScene, s: Surface, p: np.ndarray, n: np.ndarray, f
     density, with a per-surface strength up to ``scene.detail`` (a tenth of it on ``flat`` surfaces, which
     stay nearly textureless). The mip pyramid filters it where it is finer than a pixel, and it fades out
     where even its coarsest level would alias, so it never adds noise that differs between views."""
-    from mvsformerpp.synth.photos import LEVELS, sample_texture
-
     rng = np.random.default_rng([s.seed, 7])
     strength = scene.detail * rng.uniform(0.5, 1.0) * (0.1 if s.texture == "flat" else 1.0)
     density = DETAIL_DENSITY * (s.texels_per_unit if s.texture == "photo" else 384.0 * s.scale)

@@ -1,6 +1,6 @@
 """Training configuration: one documented dataclass, three recipes, YAML in and out, ``--set`` overrides.
 
-``RECIPES`` hold the reference's settings (spec sections 8-9) for DTU training and BlendedMVS
+``RECIPES`` hold the reference's loss and training settings for DTU training and BlendedMVS
 fine-tuning, and a small synthetic recipe for CPU runs, tests and the default model. A YAML file with
 any subset of the fields (plus ``recipe:`` to start from one) gives the same config; the resolved
 config is saved as ``RUN_DIR/config.yaml``.
@@ -177,10 +177,10 @@ RESUMABLE_CHANGES = frozenset({"parallax_range", "parallax_samples", "num_worker
                                "log_every", "save_every", "tensorboard",
                                "progress", "data_root", "dtu_root"})
 
-# The reference's 25 multi-scale resolutions (spec section 9: 512x640 ... 1024x1280, three widths per height
-# from 512 to 960, then 1024x1280). The spec does not list the widths: here the first width of a row is
+# The reference's 25 multi-scale resolutions (512x640 ... 1024x1280, three widths per height from 512 to
+# 960, then 1024x1280). Only this range is known, not each width: here the first width of a row is
 # 1.25 H rounded half up to a multiple of 64, then +64 and +128, and
-# their mean token count (H/8)(W/8) is 12185.6, the n_train of adaptive attention scaling (spec 5).
+# their mean token count (H/8)(W/8) is 12185.6, the n_train of the reference's adaptive attention scaling.
 DTU_RESOLUTIONS: tuple[tuple[int, int], ...] = tuple(
     (h, w) for h, w0 in ((512, 640), (576, 704), (640, 832), (704, 896), (768, 960), (832, 1024), (896, 1152),
                          (960, 1216)) for w in (w0, w0 + 64, w0 + 128)) + ((1024, 1280),)
@@ -191,7 +191,7 @@ RECIPES: dict[str, TrainConfig] = {
         recipe="synthetic", preset="lite", height=128, width=160, batch_size=4, lr=1e-3, warmup_steps=100,
         epochs=20, val_samples=16,
     ),
-    # config/mvsformer++.json (spec section 9): 25 resolutions 512x640 .. 1024x1280, global batch 16 (4 per GPU
+    # The official config/mvsformer++.json: 25 resolutions 512x640 .. 1024x1280, global batch 16 (4 per GPU
     # on 4 GPUs) in micro-batches of 4 up to H = 704 and 2 above, 15 epochs, lr 1e-3, 500 warm-up steps.
     "dtu": TrainConfig(
         recipe="dtu", preset="paper", height=512, width=640,

@@ -10,7 +10,7 @@ from mvsformerpp.data.scenes import BalancedMix, SceneDataset
 from mvsformerpp.errors import InputError
 from mvsformerpp.training.config import TrainConfig
 
-# BlendedMVS: photos 1536 x 2048, resize clipped at 0.375 (spec section 9).
+# BlendedMVS: photos 1536 x 2048, resize clipped at 0.375 (the reference's values).
 BLENDED_BASE, BLENDED_MIN_SCALE = (1536, 2048), 0.375
 
 # Validation scenes of the synthetic recipe start this far after the training seeds.
@@ -46,7 +46,7 @@ def build_datasets(config: TrainConfig) -> tuple[MVSDataset, MVSDataset]:
 
     if config.recipe == "dtu":
         train = dtu(config.data_root, config.train_list or dtu_list("trainval"), train_tf, photometric, config.seed)
-        # the reference selects its checkpoint on the test scans (spec 14.6); --val-list val.txt is the clean choice
+        # the reference selects its checkpoint on the test scans; --val-list val.txt is the clean choice
         val = dtu(config.data_root, config.val_list or dtu_list("test"), val_tf, None, config.seed + 1, lights=(3,))
         return train, val
     if config.recipe == "blended_finetune":

@@ -8,34 +8,26 @@ own batch statistics). Without torchrun everything here is a no-op for one proce
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass
 
 import torch
 import torch.distributed as dist
 
+from mvsformerpp.utils.distributed import ProcessRank, env_rank
+
 
 @dataclass(frozen=True)
-class DistInfo:
-    rank: int
-    world_size: int
-    local_rank: int
+class DistInfo(ProcessRank):
+    """This process's ranks and the device it trains on."""
+
     device: torch.device
-
-    @property
-    def is_main(self) -> bool:
-        return self.rank == 0
-
-    @property
-    def enabled(self) -> bool:
-        return self.world_size > 1
 
 
 def init_distributed(device: str) -> DistInfo:
     """Join the torchrun process group if there is one; the device of this process (``auto``: CUDA when
     there is a CUDA device, else the CPU, said on stdout)."""
-    world = int(os.environ.get("WORLD_SIZE", "1"))
-    rank, local = int(os.environ.get("RANK", "0")), int(os.environ.get("LOCAL_RANK", "0"))
+    ranks = env_rank()
+    rank, world, local = ranks.rank, ranks.world_size, ranks.local_rank
     if device == "auto":
         device = "cuda" if torch.cuda.is_available() else "cpu"
         if rank == 0:
@@ -57,7 +49,7 @@ def init_distributed(device: str) -> DistInfo:
 
 def wrap_model(model: torch.nn.Module, info: DistInfo) -> torch.nn.Module:
     """SyncBatchNorm (CUDA) and DistributedDataParallel when several processes train together."""
-    if not info.enabled:
+    if not info.distributed:
         return model
     from torch.nn.parallel import DistributedDataParallel
 
@@ -72,7 +64,7 @@ def unwrap(model: torch.nn.Module) -> torch.nn.Module:
 
 
 def all_reduce_mean(x: torch.Tensor, info: DistInfo) -> torch.Tensor:
-    if info.enabled:
+    if info.distributed:
         y = x.to(info.device, copy=True)
         dist.all_reduce(y)
         x = (y / info.world_size).to(x.device)
@@ -81,7 +73,7 @@ def all_reduce_mean(x: torch.Tensor, info: DistInfo) -> torch.Tensor:
 
 def any_rank(flag: bool, info: DistInfo) -> bool:
     """True if ``flag`` is true on any process."""
-    if not info.enabled:
+    if not info.distributed:
         return flag
     t = torch.tensor([1.0 if flag else 0.0], device=info.device)
     dist.all_reduce(t, op=dist.ReduceOp.MAX)
@@ -89,10 +81,10 @@ def any_rank(flag: bool, info: DistInfo) -> bool:
 
 
 def barrier(info: DistInfo) -> None:
-    if info.enabled:
+    if info.distributed:
         dist.barrier()
 
 
 def shutdown(info: DistInfo) -> None:
-    if info.enabled and dist.is_initialized():
+    if info.distributed and dist.is_initialized():
         dist.destroy_process_group()

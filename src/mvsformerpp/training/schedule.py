@@ -1,4 +1,4 @@
-"""Learning-rate schedule of the reference (spec section 9): linear warm-up, then cosine to ``min_ratio``.
+"""Learning-rate schedule of the reference: linear warm-up, then cosine to ``min_ratio``.
 
 ``f(t) = t / warmup`` for ``t < warmup``, then ``min_ratio + (1 - min_ratio) (1 + cos(pi (t - warmup) /
 (total - warmup))) / 2``; the learning rate of step ``t`` (0-based, before its update) is ``lr f(t)``.

@@ -40,8 +40,7 @@ from mvsformerpp.training.checkpoints import (
 from mvsformerpp.training.config import TrainConfig
 from mvsformerpp.training.logging import MetricsLog
 from mvsformerpp.training.schedule import build_scheduler
-
-PRECISIONS = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
+from mvsformerpp.utils.precision import autocast
 
 
 class TrainingError(MVSFormerError):
@@ -95,11 +94,6 @@ def _to(batch, device):
     return batch.to(device, non_blocking=True)
 
 
-def _autocast(device: torch.device, precision: str):
-    dtype = PRECISIONS[precision]
-    return contextlib.nullcontext() if dtype is None else torch.autocast(device.type, dtype=dtype)
-
-
 def collate(items: list[dict]) -> dict:
     return torch.utils.data.default_collate(items)
 
@@ -116,7 +110,7 @@ def validate(model: MVSFormerPP, dataset: MVSDataset, config: TrainConfig, devic
     sums, losses, stages = DepthSums(), [], []
     for i in range(n):
         batch = _to(collate([dataset[SampleKey(i, h, w, 0)]]), device)
-        with _autocast(device, config.precision):
+        with autocast(device, config.precision):
             out = model(batch["imgs"], batch["proj_matrices"], batch["depth_values"])
         loss, per_stage = cascade_loss(out, batch["depth_gt"], batch["mask"], loss_weights)
         losses.append(float(loss))
@@ -306,9 +300,9 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
     bad = False
     for i, (a, b) in enumerate(chunks):
         chunk = _to(_slice(batch, a, b), device)
-        sync = i == len(chunks) - 1 or not info.enabled
+        sync = i == len(chunks) - 1 or not info.distributed
         with contextlib.nullcontext() if sync else model.no_sync():
-            with _autocast(device, config.precision):
+            with autocast(device, config.precision):
                 guide = window_guide(chunk, config.window_guide, guides)
                 out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"],
                             **({"window_guide": guide} if guide is not None else {}))

@@ -27,6 +27,7 @@ from collections.abc import Iterator, Sequence
 from pathlib import Path
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.utils.distributed import env_rank
 
 MARKER = ".mvsformerpp"
 LOCK = ".mvsformerpp.lock"
@@ -158,7 +159,7 @@ def claim_output_folder(out: str | Path, inputs: Sequence[str | Path] = (), kind
     if not os.access(out, os.W_OK | os.X_OK):
         raise InputError("the output folder is not writable (permission denied or a read-only file system); "
                          "choose another -o", out)
-    rank, world = int(os.environ.get("RANK", "0")), int(os.environ.get("WORLD_SIZE", "1"))
+    rank, world = env_rank().rank, env_rank().world_size
     # One job of several processes (torchrun): rank 0 holds the lock for all of them, and nobody removes
     # temporaries, which may be another rank's file in flight.
     held = contextlib.ExitStack()
