@@ -46,8 +46,8 @@ def make_synth_run(root: Path, seed: int = 3, num_views: int = 5, height: int = 
         "source_format": "mvsnet", "num_views_in_input": num_views}))
     points = None
     if fuse:
-        from mvsformerpp.io.ply import ply_points, read_ply
         from mvsformerpp.fusion import get_config
+        from mvsformerpp.io.ply import ply_points, read_ply
         from mvsformerpp.pipelines.fuse import fuse as run_fuse
 
         # the normal preset's own threshold (0.5), not the one calibrated for the shipped weights that
