@@ -56,7 +56,7 @@ class RunPlan:
     @property
     def resolved(self) -> dict:
         """The working resolution as config.json and the summary record it."""
-        return {"long_side": self.long_side, "canvas": [self.plans[0].canvas_width, self.plans[0].canvas_height]}
+        return resolved_size(self.long_side, self.plans)
 
     @property
     def preview_conf(self) -> float | None:
@@ -64,6 +64,11 @@ class RunPlan:
         if self.config.fusion == "none":
             return None
         return self.fusion_conf if self.fusion_conf is not None else fusion_preset(self.config.fusion).conf_threshold
+
+
+def resolved_size(long_side: int, plans: list[ViewResize]) -> dict:
+    """The working resolution as config.json, the summary and each view's fingerprint record it."""
+    return {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}
 
 
 def cap_views(config: ReconstructConfig, num_images: int, say: bool) -> ReconstructConfig:
@@ -82,7 +87,7 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
     """The plan for ``scene`` (prepared from the input ``full``) at the working resolution ``long_side``
     (:func:`working_long_side`); ``given_model``: the caller passed its own network (no weights file)."""
     plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
-    resolved = {"long_side": long_side, "canvas": [plans[0].canvas_width, plans[0].canvas_height]}  # (= .resolved)
+    resolved = resolved_size(long_side, plans)
     weights = None
     if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
