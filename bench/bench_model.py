@@ -1,28 +1,44 @@
-"""Eval-forward time and peak memory of the paper network (5 views), against the compute floor.
+"""Eval-forward time and peak memory of the paper network (5 views): our two paths beside the official
+code, with a profile of where the time goes.
 
-``first s`` is the first forward after building the model (what the official numbers measure),
-``time s`` the next one (steady state, as when a scene is reconstructed view after view); the
-ratio to the floor uses the steady state.
+Paths (each in a fresh subprocess, so peak RSS is clean, alternated over ``--repeats`` rounds):
 
-Each configuration runs in a fresh subprocess (clean peak RSS) with the malloc tuning the
-``mvsformerpp`` command applies (mvsformerpp.utils.allocator; ``--system-allocator`` leaves glibc's
-defaults). The floor is the forward's FLOPs (torch.utils.flop_counter) divided by this machine's
-measured sgemm rate, both measured in this run.
-Reference numbers of the official code on a 2-core machine (fp32): 12-18 s and 2.1 GB peak RSS at
-512x640, 100 s and 5.15 GB at 1152x1536.
+* ``prepared``: ``model.prepare_for_inference()``, what the ``mvsformerpp`` commands run;
+* ``plain``: ``model.eval()`` under ``torch.no_grad()``, what a PyTorch user calls first;
+* ``official``: the official code (maybeLx/MVSFormerPlusPlus) from a checkout given with
+  ``--official DIR`` (never vendored or downloaded here), built on the CPU with the same weights
+  (one random state_dict, written once and loaded by every path) and the same inputs; its depth maps
+  are compared with ours, so the run also shows that the speed costs no parity.
 
-    python bench/bench_model.py [--sizes 512x640 1152x1536] [--device cpu|cuda] [--precision fp32|bf16]
+``first s`` is the first forward after building the model, ``time s`` the next one (steady state, as
+when a scene is reconstructed view after view); ratios use the best round of each. The floor is the
+forward's FLOPs (torch.utils.flop_counter) divided by this machine's sgemm rate, both measured here.
+Every path runs with the malloc tuning the ``mvsformerpp`` command applies
+(mvsformerpp.utils.allocator) unless ``--system-allocator``.
+
+    python bench/bench_model.py [--sizes 512x640 1152x1536] [--paths prepared plain official]
+        [--official DIR] [--precision fp32|bf16] [--repeats 2] [--json PATH]
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+import os
 import subprocess
 import sys
+import tempfile
 import time
+from pathlib import Path
 
-OFFICIAL = {"512x640": (15.0, 2.1), "1152x1536": (100.0, 5.15)}  # seconds (midpoint of 12-18), GB
+# The official code measured on a 2-core machine of this kind (fp32), used when no checkout is given.
+OFFICIAL = {"512x640": (11.0, 2.0), "1152x1536": (70.0, 5.0)}  # seconds, GB
+PARTS = ["vit", "decoder_vit", "encoder", "decoder", "FMT_module", "fusions.0.cost_reg", "fusions.0",
+         "fusions.1", "fusions.2", "fusions.3"]
+ENTRY_POINTS = ("forward", "forward_taps", "forward_interval_features", "cost_volume", "predict")
+PART_NAMES = {"vit": "DINOv2", "decoder_vit": "SVA", "encoder": "FPN enc", "decoder": "FPN dec",
+              "FMT_module": "FMT", "fusions.0.cost_reg": "CVT", "fusions.0": "stage 1 rest",
+              "fusions.1": "stage 2", "fusions.2": "stage 3", "fusions.3": "stage 4"}
 
 
 def sgemm_gflops(n: int = 2048, reps: int = 3, trials: int = 7) -> float:
@@ -41,34 +57,14 @@ def sgemm_gflops(n: int = 2048, reps: int = 3, trials: int = 7) -> float:
     return best
 
 
-def softmax_gscores(n: int = 4096, heads: int = 4, dim: int = 16, trials: int = 5) -> float:
-    """Rate of PyTorch's fused attention (G scores/s, best trial) at the CVT's head size (16): one
-    exponential per score, which bounds attention with small heads on a CPU, not the FLOPs."""
-    import torch
-    import torch.nn.functional as F
-
-    q, k, v = (torch.randn(1, heads, n, dim) for _ in range(3))
-    F.scaled_dot_product_attention(q, k, v)
-    best = 0.0
-    for _ in range(trials):
-        t = time.perf_counter()
-        F.scaled_dot_product_attention(q, k, v)
-        best = max(best, heads * n * n / (time.perf_counter() - t) / 1e9)
-    return best
-
-
-def cvt_exponentials(H: int, W: int, cfg) -> float:
-    """Softmax scores of the stage-1 cost-volume transformer (layers x heads x tokens^2)."""
-    pd, ph, pw = cfg.cvt_patch
-    tokens = cfg.num_hypotheses[0] // pd * (H // 8 // ph) * (W // 8 // pw)
-    return cfg.cvt_layers * cfg.cvt_heads * tokens**2
-
-
-def synthetic_inputs(H: int, W: int, views: int, device: str):
-    """Random images, cameras on a line 50 units apart (DTU-like depth range): the forward's inputs."""
+def synthetic_inputs(H: int, W: int, views: int, device: str, depth_planes: int = 2):
+    """Random images, cameras on a line 50 units apart (DTU-like depth range 425-935): the forward's
+    inputs. ``depth_planes`` > 2 lists that many depths (the official loaders' form; both models read
+    only the first and the last)."""
     import torch
 
-    imgs = torch.randn(1, views, 3, H, W, device=device)
+    g = torch.Generator().manual_seed(0)
+    imgs = torch.randn(1, views, 3, H, W, generator=g).to(device)
     proj = {}
     for s, f in enumerate((8, 4, 2, 1)):
         P = torch.zeros(1, views, 2, 4, 4, device=device)
@@ -76,67 +72,119 @@ def synthetic_inputs(H: int, W: int, views: int, device: str):
         P[:, :, 0, 0, 3] = torch.arange(views) * 50.0
         P[:, :, 1, :3, :3] = torch.tensor([[1.2 * W / f, 0, W / 2 / f], [0, 1.2 * W / f, H / 2 / f], [0, 0, 1]])
         proj[f"stage{s + 1}"] = P
-    return imgs, proj, torch.tensor([[425.0, 935.0]], device=device)
+    return imgs, proj, torch.linspace(425.0, 935.0, depth_planes, device=device)[None]
 
 
-def child(size: str, device: str, precision: str, views: int, count_flops: bool, tune: bool) -> dict:
+def official_model(checkout: str):
+    """The official network built from a checkout (its DINOv2 file bypassed: weights come from the
+    state_dict loaded afterwards)."""
+    import copy
+    import io
+    import warnings
+    from contextlib import redirect_stdout
+
+    warnings.filterwarnings("ignore")
+    sys.path.insert(0, checkout)
+    with open(os.path.join(checkout, "config", "mvsformer++.json")) as f:
+        args = json.load(f)["arch"]["args"]
+    args["vit_path"] = os.path.join(checkout, "does-not-exist.pth")
+    try:
+        from models.networks.DINOv2_mvsformer_model import DINOv2MVSNet
+    except ModuleNotFoundError as e:
+        raise SystemExit(f"the official code imports {e.name!r}, which is not installed: pip install {e.name}")
+    with redirect_stdout(io.StringIO()):
+        return DINOv2MVSNet(copy.deepcopy(args))
+
+
+def child(path: str, size: str, device: str, precision: str, views: int, weights: str, checkout: str | None,
+          depth_out: str, count_flops: bool, tune: bool) -> dict:
     import resource
 
     if tune:
         from mvsformerpp.utils.allocator import tune_allocator
 
         tune_allocator()
+    import numpy as np
     import torch
 
-    from mvsformerpp.models import build_model
-
     H, W = (int(x) for x in size.split("x"))
-    torch.manual_seed(0)
-    model = build_model("paper").to(device).prepare_for_inference()
-    imgs, proj, dv = synthetic_inputs(H, W, views, device)
+    state = torch.load(weights, map_location="cpu", mmap=True, weights_only=True)
+    if path == "official":
+        model = official_model(checkout)
+        model.load_state_dict({k: v for k, v in state.items() if k in model.state_dict()}, strict=False)
+        missing = set(model.state_dict()) - set(state)
+        if any("pe_dict" not in k for k in missing):
+            raise SystemExit(f"the official model has keys the state_dict lacks: {sorted(missing)[:5]}")
+        model.eval()
+    else:
+        from mvsformerpp.models import build_model
+
+        model = build_model("paper")
+        model.load_state_dict(state)
+        model.eval()
+        if path == "prepared":
+            model.prepare_for_inference()
+    del state
+    model.to(device)
+    imgs, proj, dv = synthetic_inputs(H, W, views, device, depth_planes=192 if path == "official" else 2)
     dtype = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}[precision]
     rss0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
 
-    # Time the two blocks whose attention softmax dominates: DINOv2 and the stage-1 cost-volume
-    # transformer (its exponentials, not its FLOPs, bound it on a CPU).
-    parts = {"vit": 0.0, "cvt": 0.0}
+    parts = dict.fromkeys(PARTS, 0.0)
+    nesting = dict.fromkeys(PARTS, 0)
+
+    def sync():
+        if device == "cuda":
+            torch.cuda.synchronize()
 
     def timed(name, fn):
         def wrapper(*args, **kwargs):
-            if device == "cuda":
-                torch.cuda.synchronize()
-            t0 = time.perf_counter()
-            out = fn(*args, **kwargs)
-            if device == "cuda":
-                torch.cuda.synchronize()
-            parts[name] += time.perf_counter() - t0
-            return out
+            nesting[name] += 1
+            if nesting[name] == 1:
+                sync()
+                t0 = time.perf_counter()
+            try:
+                return fn(*args, **kwargs)
+            finally:
+                nesting[name] -= 1
+                if nesting[name] == 0:
+                    sync()
+                    parts[name] += time.perf_counter() - t0
         return wrapper
 
-    model.vit.forward_taps = timed("vit", model.vit.forward_taps)
-    model.fusions[0].cost_reg.forward = timed("cvt", model.fusions[0].cost_reg.forward)
+    # Each part's entry points, whichever of them the model calls (both models call some parts by a
+    # method other than forward); nested calls of one part count once.
+    for name in PARTS:
+        m = model.get_submodule(name)
+        for method in ENTRY_POINTS:
+            if hasattr(type(m), method):
+                setattr(m, method, timed(name, getattr(m, method)))
 
     def run():
+        kwargs = {"tmp": [5.0, 5.0, 5.0, 1.0]} if path == "official" else {}
         with torch.no_grad(), torch.autocast(device, dtype=dtype or torch.float32, enabled=dtype is not None):
-            out = model(imgs, proj, dv)
-        if device == "cuda":
-            torch.cuda.synchronize()
+            out = model(imgs, proj, dv, **kwargs)
+        sync()
         return out
 
     if device == "cuda":
         run()
         torch.cuda.reset_peak_memory_stats()
     t = time.perf_counter()
-    run()
+    out = run()
     cold = time.perf_counter() - t
-    parts.update(vit=0.0, cvt=0.0)
+    depth = out["refined_depth"] if "refined_depth" in out else out["depth"]
+    np.save(depth_out, depth.float().cpu().numpy())
+    del out, depth
+    parts.update(dict.fromkeys(PARTS, 0.0))
     t = time.perf_counter()
     run()
     seconds = time.perf_counter() - t
-    vit_s, cvt_s = parts["vit"], parts["cvt"]
-    res = {"size": size, "device": device, "precision": precision, "seconds": seconds, "cold_seconds": cold,
-           "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
-           "rss_after_build_gb": rss0 / 1e6, "vit_seconds": vit_s, "cvt_seconds": cvt_s}
+    steady = dict(parts)
+    steady["fusions.0"] -= steady["fusions.0.cost_reg"]
+    res = {"path": path, "size": size, "device": device, "precision": precision, "seconds": seconds,
+           "cold_seconds": cold, "peak_rss_gb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1e6,
+           "rss_after_build_gb": rss0 / 1e6, "parts": steady}
     if device == "cuda":
         res["peak_cuda_gb"] = torch.cuda.max_memory_allocated() / 1e9
     if count_flops:
@@ -148,50 +196,117 @@ def child(size: str, device: str, precision: str, views: int, count_flops: bool,
     return res
 
 
+def write_weights(path: str) -> None:
+    """One random state_dict of the paper network (seed 0) for every path to load."""
+    import torch
+
+    from mvsformerpp.models import build_model
+
+    torch.manual_seed(0)
+    torch.save(build_model("paper").state_dict(), path)
+
+
+def depth_difference(a: str, b: str) -> float:
+    """max |a - b| / max |b| of two saved depth maps."""
+    import numpy as np
+
+    x, y = np.load(a).astype(np.float64), np.load(b).astype(np.float64)
+    return float(np.abs(x - y).max() / np.abs(y).max())
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--sizes", nargs="+", default=["512x640", "1152x1536"])
+    ap.add_argument("--paths", nargs="+", choices=["prepared", "plain", "official"])
+    ap.add_argument("--official", metavar="DIR", help="a checkout of maybeLx/MVSFormerPlusPlus to time beside ours")
     ap.add_argument("--device", default="cpu")
     ap.add_argument("--precision", default="fp32", choices=["fp32", "bf16", "fp16"])
     ap.add_argument("--views", type=int, default=5)
+    ap.add_argument("--repeats", type=int, default=1, help="rounds of all paths, alternated (best round counts)")
     ap.add_argument("--no-flops", action="store_true", help="skip FLOP counting (it costs one more forward)")
     ap.add_argument("--system-allocator", action="store_true", help="glibc's default malloc settings")
-    ap.add_argument("--child", help=argparse.SUPPRESS)
+    ap.add_argument("--json", metavar="PATH", help="also write every measurement here")
+    ap.add_argument("--child", nargs=5, help=argparse.SUPPRESS)
     a = ap.parse_args()
     if a.child:
-        print(json.dumps(child(a.child, a.device, a.precision, a.views, not a.no_flops, not a.system_allocator)))
+        path, size, weights, depth_out, checkout = a.child
+        print(json.dumps(child(path, size, a.device, a.precision, a.views, weights, checkout or None, depth_out,
+                               not a.no_flops and path != "official", not a.system_allocator)))
         return
-    rate = sgemm_gflops()
-    rows = []
-    for size in a.sizes:
-        cmd = [sys.executable, __file__, "--child", size, "--device", a.device, "--precision", a.precision,
-               "--views", str(a.views)] + (["--no-flops"] if a.no_flops else []) + \
-              (["--system-allocator"] if a.system_allocator else [])
-        out = subprocess.run(cmd, capture_output=True, text=True, check=True)
-        rows.append(json.loads(out.stdout.strip().splitlines()[-1]))
-    rate = max(rate, sgemm_gflops())  # measured before and after the runs; the best one sets the floor
-    print(f"sgemm: {rate:.0f} GFLOP/s (cpu, best of the trials before and after the runs)")
-    print("malloc: " + ("glibc defaults" if a.system_allocator else "tuned as the mvsformerpp command does"))
+    paths = a.paths or (["prepared", "plain", "official"] if a.official else ["prepared", "plain"])
+    if "official" in paths:
+        if not a.official:
+            ap.error("--paths official needs --official DIR (a checkout of maybeLx/MVSFormerPlusPlus)")
+        if not (Path(a.official) / "models" / "networks" / "DINOv2_mvsformer_model.py").is_file():
+            ap.error(f"--official {a.official}: not a checkout of maybeLx/MVSFormerPlusPlus "
+                     "(models/networks/DINOv2_mvsformer_model.py is missing)")
+    rate = sgemm_gflops() if a.device == "cpu" else float("nan")
+    rows: dict[tuple[str, str], dict] = {}
+    with tempfile.TemporaryDirectory() as tmp:
+        weights = os.path.join(tmp, "weights.pt")
+        write_weights(weights)
+        for r in range(a.repeats):
+            for size in a.sizes:
+                order = paths if r % 2 == 0 else paths[::-1]
+                for path in order:
+                    depth = os.path.join(tmp, f"{path}-{size}.npy")
+                    cmd = [sys.executable, __file__, "--child", path, size, weights, depth,
+                           os.path.abspath(a.official) if path == "official" else "",
+                           "--device", a.device, "--precision", a.precision, "--views", str(a.views)]
+                    cmd += ["--no-flops"] if a.no_flops or r > 0 else []
+                    cmd += ["--system-allocator"] if a.system_allocator else []
+                    out = subprocess.run(cmd, capture_output=True, text=True)
+                    if out.returncode:
+                        raise SystemExit(f"{path} at {size} failed:\n{out.stderr[-3000:]}")
+                    res = json.loads(out.stdout.strip().splitlines()[-1])
+                    best = rows.get((size, path))
+                    if best is not None:
+                        res["gflop"] = best.get("gflop", res.get("gflop"))
+                        res["rounds"] = best["rounds"] + [res["seconds"]]
+                        if res["seconds"] >= best["seconds"]:
+                            best["rounds"] = res["rounds"]
+                            best["peak_rss_gb"] = min(best["peak_rss_gb"], res["peak_rss_gb"])
+                            continue
+                        res["peak_rss_gb"] = min(best["peak_rss_gb"], res["peak_rss_gb"])
+                    else:
+                        res["rounds"] = [res["seconds"]]
+                    rows[(size, path)] = res
+            for size in a.sizes:
+                if "official" in paths:
+                    ref = os.path.join(tmp, f"official-{size}.npy")
+                    for path in paths:
+                        if path != "official":
+                            rows[(size, path)]["depth_vs_official"] = depth_difference(
+                                os.path.join(tmp, f"{path}-{size}.npy"), ref)
     if a.device == "cpu":
-        from mvsformerpp.models.config import get_config
+        rate = max(rate, sgemm_gflops())
+        print(f"sgemm: {rate:.0f} GFLOP/s (cpu, best of the trials before and after the runs)")
+    print("malloc: " + ("glibc defaults" if a.system_allocator else "tuned as the mvsformerpp command does"))
+    print(f"{a.views} views, {a.precision}, best of {a.repeats} round(s); official: "
+          + (a.official if "official" in paths else f"not run (reference numbers {OFFICIAL})"))
+    hdr = (f"{'size':>10} {'path':>9} {'first s':>8} {'time s':>8} {'GFLOP':>6} {'x floor':>8} {'peak GB':>8} "
+           f"{'speed-up':>9} {'memory':>7} {'depth vs official':>18}")
+    print("\n" + hdr)
+    for (size, path), r in rows.items():
+        off = rows.get((size, "official"))
+        off_s, off_gb = (off["seconds"], off["peak_rss_gb"]) if off else OFFICIAL.get(size, (float("nan"),) * 2)
+        floor = r["gflop"] / rate if "gflop" in r else float("nan")
+        diff = f"{r['depth_vs_official']:.1e}" if "depth_vs_official" in r else "-"
+        print(f"{size:>10} {path:>9} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} {r.get('gflop', float('nan')):>6.0f} "
+              f"{r['seconds'] / floor:>8.2f} {r['peak_rss_gb']:>8.2f} {off_s / r['seconds']:>8.2f}x "
+              f"{r['peak_rss_gb'] / off_gb:>6.2f}x {diff:>18}")
+    print("\nspeed-up: official time / this path's (steady state); memory: peak RSS / the official's")
+    print("\nwhere the time goes (s, steady state)")
+    print(f"{'size':>10} {'path':>9} " + " ".join(f"{PART_NAMES[p]:>{max(7, len(PART_NAMES[p]))}}" for p in PARTS)
+          + f" {'other':>7}")
+    for (size, path), r in rows.items():
+        other = r["seconds"] - sum(r["parts"].values())
+        print(f"{size:>10} {path:>9} " + " ".join(f"{r['parts'][p]:>{max(7, len(PART_NAMES[p]))}.2f}" for p in PARTS)
+              + f" {other:>7.2f}")
+    if a.json:
+        from mvsformerpp.utils.atomic import atomic_write_text
 
-        score_rate = softmax_gscores()
-        for size in a.sizes:
-            H, W = (int(x) for x in size.split("x"))
-            n = cvt_exponentials(H, W, get_config("paper")) / 1e9
-            print(f"{size}: the CVT's softmax has {n:.2f} G scores (one exponential each); at this CPU's fused "
-                  f"attention rate ({score_rate:.2f} G scores/s, head size 16) they take {n / score_rate:.1f} s")
-    hdr = (f"{'size':>10} {'prec':>5} {'first s':>8} {'time s':>8} {'DINOv2 s':>8} {'CVT s':>6} {'GFLOP':>7} "
-           f"{'floor s':>8} {'x floor':>8} {'peak RSS GB':>11} {'vs official time':>16} {'vs official RSS':>15}")
-    print(hdr)
-    for r in rows:
-        floor = r["gflop"] / rate if "gflop" in r and a.device == "cpu" else float("nan")  # CPU sgemm floor
-        off = OFFICIAL.get(r["size"])
-        vt = f"{r['cold_seconds'] / off[0]:.2f}x" if off and a.device == "cpu" else "-"
-        vm = f"{r['peak_rss_gb'] / off[1]:.2f}x" if off and a.device == "cpu" else "-"
-        print(f"{r['size']:>10} {r['precision']:>5} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} "
-              f"{r['vit_seconds']:>8.2f} {r['cvt_seconds']:>6.2f} {r.get('gflop', float('nan')):>7.0f} "
-              f"{floor:>8.2f} {r['seconds'] / floor:>8.2f} {r['peak_rss_gb']:>11.2f} {vt:>16} {vm:>15}")
+        atomic_write_text(a.json, json.dumps({"sgemm_gflops": rate, "rows": list(rows.values())}, indent=1))
 
 
 if __name__ == "__main__":

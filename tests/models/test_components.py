@@ -381,3 +381,25 @@ def test_prepared_forms_are_never_stale():
     loss = model(imgs, proj, dv)["stage4"]["prob_volume_pre"].square().mean()
     loss.backward()
     assert model.fusions[3].cost_reg.conv1.conv.weight.grad is not None
+
+
+def test_plain_eval_without_autograd_runs_lean_and_training_does_not():
+    """The memory savers (in-place work, image-by-image passes) need no prepared weights: a plain
+    eval forward under no_grad gets them; a forward with autograd or a module in training does not."""
+    from mvsformerpp.models import build_model, prepared
+
+    net = build_model("lite")
+    seen = {}
+    net.eval()
+    with torch.no_grad(), prepared.session(net):
+        seen["plain eval, no_grad"] = (prepared.lean(), prepared.active())
+    with prepared.session(net):
+        seen["eval, autograd"] = (prepared.lean(), prepared.active())
+    net.fusions[1].train()
+    with torch.no_grad(), prepared.session(net):
+        seen["one module training"] = (prepared.lean(), prepared.active())
+    net.prepare_for_inference()
+    with torch.no_grad(), prepared.session(net):
+        seen["prepared, no_grad"] = (prepared.lean(), prepared.active())
+    assert seen == {"plain eval, no_grad": (True, False), "eval, autograd": (False, False),
+                    "one module training": (False, False), "prepared, no_grad": (True, True)}

@@ -98,7 +98,7 @@ class StageNet(nn.Module):
             D = hypotheses.shape[1]
             # Hypotheses in chunks bound the warped-feature memory (full resolution: ~0.25 GB per view).
             step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
-            inplace = prepared.active()  # prepared inference: reuse buffers, no autograd to keep
+            inplace = prepared.lean()  # eval without autograd: reuse buffers
             vis_forms = prepared.forms(self)
             volume_sum, vis_sum, spare = None, 0.0, None
             for v in range(1, features.shape[1]):

@@ -78,9 +78,9 @@ def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.T
     frozen = not any(p.requires_grad for p in vit.parameters())
     with torch.set_grad_enabled(torch.is_grad_enabled() and not frozen):
         taps = vit.forward_taps(vit_imgs)
-    if not prepared.active():
+    if not prepared.lean():
         fpn = tuple(encoder(imgs))
-    else:  # prepared inference: image by image, the same result with a smaller peak memory
+    else:  # eval without autograd: image by image, the same result with a smaller peak memory
         fpn = tuple(per_image(encoder, N, imgs))
     return ImageFeatures(taps, (vh // vit.patch_size, vw // vit.patch_size), fpn)
 
@@ -97,9 +97,9 @@ def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: Ima
     if vit_feat.shape[-2:] != conv31.shape[-2:]:
         vit_feat = F.interpolate(vit_feat, size=conv31.shape[-2:], mode="bilinear", align_corners=False)
     conv31 = conv31 + vit_feat
-    if not prepared.active():  # in training, BatchNorm batch statistics over all B*V images
+    if not prepared.lean():  # in training, BatchNorm batch statistics over all B*V images
         stages = decoder(conv01, conv11, conv21, conv31)
-    else:  # prepared inference: image by image, the same result with a much smaller working set
+    else:  # eval without autograd: image by image, the same result with a much smaller working set
         stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)
     return [s.reshape(B, V, *s.shape[1:]) for s in stages]
 

@@ -95,9 +95,9 @@ class FMTWithPathway(nn.Module):
     @staticmethod
     def _upsample_add(x: torch.Tensor, y: torch.Tensor) -> torch.Tensor:
         # align_corners=False here, unlike the FPN decoder (as the official code does).
-        if not prepared.active():
+        if not prepared.lean():
             return F.interpolate(x.float(), size=y.shape[-2:], mode="bilinear") + y
-        # prepared inference: channels-last (the smoothing convolutions run faster) and an in-place sum
+        # without autograd: channels-last (the smoothing convolutions run faster) and an in-place sum
         x = x.float().contiguous(memory_format=torch.channels_last)
         return F.interpolate(x, size=y.shape[-2:], mode="bilinear").add_(y)
 
@@ -111,7 +111,7 @@ class FMTWithPathway(nn.Module):
     def forward(self, features: list[torch.Tensor]) -> list[torch.Tensor]:
         """features: 4 tensors [B, V, C_s, H_s, W_s] -> the same shapes, refined.
 
-        In prepared inference the finer features are refined in place (their tensors are overwritten).
+        In eval without autograd the finer features are refined in place (their tensors are overwritten).
         """
         f1, f2, f3, f4 = features
         B, V = f1.shape[:2]
@@ -119,7 +119,7 @@ class FMTWithPathway(nn.Module):
         s1 = ref[:, None] if src is None else torch.cat([ref[:, None], src.reshape(B, V - 1, *src.shape[1:])], 1)
         s1 = s1.flatten(0, 1)
         f2, f3, f4 = f2.flatten(0, 1), f3.flatten(0, 1), f4.flatten(0, 1)
-        if not prepared.active():
+        if not prepared.lean():
             s2, s3, s4 = self.pathway(s1, f2, f3, f4)
         else:  # image by image, each result written over its input: a much smaller working set
             from mvsformerpp.models.features import per_image

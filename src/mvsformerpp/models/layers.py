@@ -83,9 +83,9 @@ class Mlp(nn.Module):
 
 
 def gelu_(x: torch.Tensor) -> torch.Tensor:
-    """GELU (exact, erf form); in place in a prepared inference forward (:mod:`.inference`), which
+    """GELU (exact, erf form); in place in a forward without autograd (:func:`.prepared.lean`), which
     spares a large allocation per transformer block."""
-    if not prepared.active():
+    if not prepared.lean():
         return F.gelu(x)
     return torch.ops.aten.gelu_(x)
 
@@ -101,9 +101,9 @@ class LayerScale(nn.Module):
         return x * self.gamma
 
     def residual(self, x: torch.Tensor, branch: torch.Tensor) -> torch.Tensor:
-        """x + self(branch); in a prepared inference forward in one pass (addcmul), sparing the scaled
+        """x + self(branch); in a forward without autograd in one pass (addcmul), sparing the scaled
         branch."""
-        if not prepared.active():
+        if not prepared.lean():
             return x + self(branch)
         return torch.addcmul(x, branch, self.gamma)
 

@@ -10,7 +10,9 @@ rounding) in forms that are faster on the CPU and lighter on memory:
 * the 3-D U-Nets of stages 2-4 as depth-banded 2-D convolutions (:mod:`.regularization`), the last FPN
   level in row bands (:mod:`.fpn`);
 * activations, residual sums and cost-volume buffers in place, images one at a time through the FPN
-  and the FMT pathway, features freed as soon as they are used.
+  and the FMT pathway, features freed as soon as they are used. This part needs no derived weights,
+  so a plain ``model.eval()`` forward under ``torch.no_grad()`` runs it too (:func:`lean`): the
+  reference path, which a PyTorch user calls first, is not heavier on memory than the official code.
 
 Rules:
 
@@ -26,7 +28,8 @@ Rules:
 * A module takes part by defining ``build_inference_forms()`` (derived tensors from its own parameters
   and buffers; ``inference_sources``, a tuple of child names, narrows which ones when the forms use
   only a few) and reading them back with :func:`forms` in its forward; code that only needs to know
-  whether it may work in place asks :func:`active`.
+  whether it may work in place and image by image asks :func:`lean` (true in any session without
+  autograd whose model is all in eval mode, prepared or not).
 """
 
 from __future__ import annotations
@@ -39,13 +42,21 @@ from torch import nn
 from torch.nn.utils.fusion import fuse_conv_bn_weights
 
 _ACTIVE: contextvars.ContextVar[bool] = contextvars.ContextVar("mvsformerpp_inference", default=False)
+_LEAN: contextvars.ContextVar[bool] = contextvars.ContextVar("mvsformerpp_lean", default=False)
 _FORMS = "_inference_forms"
 _SOURCES = "_inference_sources"
 
 
 def active() -> bool:
-    """Whether the current forward runs a prepared model without autograd (in-place work allowed)."""
+    """Whether the current forward runs a prepared model without autograd (its forms may be used)."""
     return _ACTIVE.get()
+
+
+def lean() -> bool:
+    """Whether the current forward runs without autograd with every module in eval mode, prepared or
+    not: activations may be overwritten in place and images run one at a time (eval BatchNorm makes
+    that the batch's result), as nothing keeps the intermediate tensors for a backward pass."""
+    return _LEAN.get()
 
 
 def forms(module: nn.Module):
@@ -99,11 +110,15 @@ def is_prepared(model: nn.Module) -> bool:
 
 @contextlib.contextmanager
 def session(model: nn.Module):
-    """Run the body with ``model``'s inference forms if it is prepared and autograd is off."""
-    token = _ACTIVE.set(not torch.is_grad_enabled() and is_prepared(model))
+    """Run the body with ``model``'s inference forms if it is prepared and autograd is off, and lean
+    (:func:`lean`) whenever autograd is off and the model is all in eval mode."""
+    no_grad = not torch.is_grad_enabled()
+    token = _ACTIVE.set(no_grad and is_prepared(model))
+    lean_token = _LEAN.set(no_grad and not any(m.training for m in model.modules()))
     try:
         yield
     finally:
+        _LEAN.reset(lean_token)
         _ACTIVE.reset(token)
 
 
