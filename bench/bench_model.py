@@ -91,7 +91,7 @@ def official_model(checkout: str):
     try:
         from models.networks.DINOv2_mvsformer_model import DINOv2MVSNet
     except ModuleNotFoundError as e:
-        raise SystemExit(f"the official code imports {e.name!r}, which is not installed: pip install {e.name}")
+        raise SystemExit(f"the official code imports {e.name!r} (not installed): pip install {e.name}") from None
     with redirect_stdout(io.StringIO()):
         return DINOv2MVSNet(copy.deepcopy(args))
 
@@ -292,7 +292,8 @@ def main() -> None:
         off_s, off_gb = (off["seconds"], off["peak_rss_gb"]) if off else OFFICIAL.get(size, (float("nan"),) * 2)
         floor = r["gflop"] / rate if "gflop" in r else float("nan")
         diff = f"{r['depth_vs_official']:.1e}" if "depth_vs_official" in r else "-"
-        print(f"{size:>10} {path:>9} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} {r.get('gflop', float('nan')):>6.0f} "
+        gflop = r.get("gflop", float("nan"))
+        print(f"{size:>10} {path:>9} {r['cold_seconds']:>8.2f} {r['seconds']:>8.2f} {gflop:>6.0f} "
               f"{r['seconds'] / floor:>8.2f} {r['peak_rss_gb']:>8.2f} {off_s / r['seconds']:>8.2f}x "
               f"{r['peak_rss_gb'] / off_gb:>6.2f}x {diff:>18}")
     print("\nspeed-up: official time / this path's (steady state); memory: peak RSS / the official's")
