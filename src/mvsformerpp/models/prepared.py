@@ -12,7 +12,7 @@ rounding) in forms that are faster on the CPU and lighter on memory:
 * activations, residual sums and cost-volume buffers in place, images one at a time through the FPN
   and the FMT pathway, features freed as soon as they are used. This part needs no derived weights,
   so a plain ``model.eval()`` forward under ``torch.no_grad()`` runs it too (:func:`lean`): the
-  reference path, which a PyTorch user calls first, is not heavier on memory than the official code.
+  path a PyTorch user calls first gets the same memory savings (the derived weights bring the speed).
 
 Rules:
 
