@@ -241,43 +241,37 @@ def main() -> None:
             ap.error(f"--official {a.official}: not a checkout of maybeLx/MVSFormerPlusPlus "
                      "(models/networks/DINOv2_mvsformer_model.py is missing)")
     rate = sgemm_gflops() if a.device == "cpu" else float("nan")
-    rows: dict[tuple[str, str], dict] = {}
+    runs: dict[tuple[str, str], list[dict]] = {}
     with tempfile.TemporaryDirectory() as tmp:
         weights = os.path.join(tmp, "weights.pt")
         write_weights(weights)
         for r in range(a.repeats):
             for size in a.sizes:
-                order = paths if r % 2 == 0 else paths[::-1]
-                for path in order:
-                    depth = os.path.join(tmp, f"{path}-{size}.npy")
-                    cmd = [sys.executable, __file__, "--child", path, size, weights, depth,
+                for path in paths if r % 2 == 0 else paths[::-1]:
+                    cmd = [sys.executable, __file__, "--child", path, size, weights,
+                           os.path.join(tmp, f"{path}-{size}.npy"),
                            os.path.abspath(a.official) if path == "official" else "",
                            "--device", a.device, "--precision", a.precision, "--views", str(a.views)]
-                    cmd += ["--no-flops"] if a.no_flops or r > 0 else []
+                    cmd += ["--no-flops"] if a.no_flops or r > 0 else []  # FLOPs do not change between rounds
                     cmd += ["--system-allocator"] if a.system_allocator else []
                     out = subprocess.run(cmd, capture_output=True, text=True)
                     if out.returncode:
                         raise SystemExit(f"{path} at {size} failed:\n{out.stderr[-3000:]}")
-                    res = json.loads(out.stdout.strip().splitlines()[-1])
-                    best = rows.get((size, path))
-                    if best is not None:
-                        res["gflop"] = best.get("gflop", res.get("gflop"))
-                        res["rounds"] = best["rounds"] + [res["seconds"]]
-                        if res["seconds"] >= best["seconds"]:
-                            best["rounds"] = res["rounds"]
-                            best["peak_rss_gb"] = min(best["peak_rss_gb"], res["peak_rss_gb"])
-                            continue
-                        res["peak_rss_gb"] = min(best["peak_rss_gb"], res["peak_rss_gb"])
-                    else:
-                        res["rounds"] = [res["seconds"]]
-                    rows[(size, path)] = res
-            for size in a.sizes:
-                if "official" in paths:
-                    ref = os.path.join(tmp, f"official-{size}.npy")
-                    for path in paths:
-                        if path != "official":
-                            rows[(size, path)]["depth_vs_official"] = depth_difference(
-                                os.path.join(tmp, f"{path}-{size}.npy"), ref)
+                    runs.setdefault((size, path), []).append(json.loads(out.stdout.strip().splitlines()[-1]))
+        # Each row: its fastest round, the lowest peak RSS, the first round's FLOPs, every round's time.
+        rows = {}
+        for key, results in runs.items():
+            row = dict(min(results, key=lambda res: res["seconds"]))
+            row.update(peak_rss_gb=min(res["peak_rss_gb"] for res in results),
+                       rounds=[res["seconds"] for res in results])
+            if "gflop" in results[0]:
+                row["gflop"] = results[0]["gflop"]
+            rows[key] = row
+        if "official" in paths:  # the depth maps of the last round (every round computes the same ones)
+            for (size, path), row in rows.items():
+                if path != "official":
+                    row["depth_vs_official"] = depth_difference(os.path.join(tmp, f"{path}-{size}.npy"),
+                                                                os.path.join(tmp, f"official-{size}.npy"))
     if a.device == "cpu":
         rate = max(rate, sgemm_gflops())
         print(f"sgemm: {rate:.0f} GFLOP/s (cpu, best of the trials before and after the runs)")
