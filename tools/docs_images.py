@@ -1,11 +1,13 @@
-"""The pictures of docs/images: the report of the demo run and a shaded view of its TSDF mesh.
+"""The pictures of docs/images: the demo run's report, viewer, TSDF mesh and Poisson meshes.
 
     python tools/docs_images.py OUT        # OUT: a `mvsformerpp demo -o OUT` folder (with report.html)
 
 Writes docs/images/report.png (headless Chromium's rendering of OUT/report.html, its first 1280x1400
 pixels, with this machine's folders shortened to OUT and the input's name) and docs/images/mesh.png
 (OUT's TSDF mesh, made with `mvsformerpp mesh` if OUT/mesh.ply is missing, seen from the first camera:
-each triangle's projection filled with its Lambert shade, nearest last).
+each triangle's projection filled with its Lambert shade, nearest last), docs/images/poisson.png (Poisson
+at depth 9: closed, cut by a 10 % density percentile, cut by the default distance rule; same view) and
+docs/images/viewer.png (`mvsformerpp view OUT` in headless Chromium after its cloud has drawn).
 """
 
 from __future__ import annotations
@@ -27,9 +29,7 @@ def report_png(out: Path, png: Path) -> None:
     """The report as a browser shows it, with this machine's folders shortened (OUT, the input's name)."""
     import json
 
-    exe = shutil.which("chromium") or shutil.which("chromium-browser")
-    if exe is None:
-        sys.exit("error: headless Chromium is needed (apt-get install chromium)")
+    exe = _chromium()
     text = (out / "report.html").read_text()
     source = json.loads((out / "config.json").read_text()).get("input")
     if source:
@@ -46,13 +46,22 @@ def report_png(out: Path, png: Path) -> None:
     Image.open(png).convert("RGB").quantize(256).save(png, optimize=True)
 
 
-def mesh_png(out: Path, png: Path, size: int = 720) -> None:
+def _chromium() -> str:
+    exe = shutil.which("chromium") or shutil.which("chromium-browser")
+    if exe is None:
+        sys.exit("error: headless Chromium is needed (apt-get install chromium)")
+    return exe
+
+
+def mesh_png(out: Path, png: Path, size: int = 720, mesh: Path | None = None, *flags: str) -> None:
+    """``mesh`` (default OUT/mesh.ply, made with ``mvsformerpp mesh OUT FLAGS`` when missing) from the first camera."""
     from mvsformerpp.io.mvsnet import load_mvsnet_scene
     from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
 
-    mesh = out / "mesh.ply"
+    mesh = mesh or out / "mesh.ply"
     if not mesh.is_file():
-        subprocess.run([sys.executable, "-m", "mvsformerpp", "mesh", str(out), "-o", str(mesh), "--quiet"], check=True)
+        subprocess.run([sys.executable, "-m", "mvsformerpp", "mesh", str(out), "-o", str(mesh), "--quiet", *flags],
+                       check=True)
     verts, faces = ply_points(read_ply(mesh)).astype(np.float64), read_ply_faces(mesh)
     view = load_mvsnet_scene(out).views[0]
     cam = verts @ view.R.T + view.t
@@ -73,6 +82,51 @@ def mesh_png(out: Path, png: Path, size: int = 720) -> None:
     img.quantize(64).save(png, optimize=True)
 
 
+POISSON = (("closed (--watertight)", ("--watertight",)),
+           ("10 % density cut", ("--max-distance", "0", "--trim", "10")),
+           ("default: distance cut", ()))
+
+
+def poisson_png(out: Path, png: Path, size: int = 420) -> None:
+    """The three Poisson meshes of OUT side by side, each with its label."""
+    tiles = []
+    with tempfile.TemporaryDirectory() as tmp:
+        for k, (label, flags) in enumerate(POISSON):
+            mesh, tile = Path(tmp) / f"p{k}.ply", Path(tmp) / f"p{k}.png"
+            mesh_png(out, tile, size, mesh, "--method", "poisson", "--depth", "9", *flags)
+            img = Image.open(tile).convert("RGB")
+            ImageDraw.Draw(img).text((8, 8), label, fill=(0, 0, 0))
+            tiles.append(img)
+    w, h = tiles[0].size
+    canvas = Image.new("RGB", (w * len(tiles), h), (255, 255, 255))
+    for k, tile in enumerate(tiles):
+        canvas.paste(tile, (k * w, 0))
+    canvas.quantize(64).save(png, optimize=True)
+
+
+def viewer_png(out: Path, png: Path, seconds: int = 20) -> None:
+    """The viewer's page once its cloud has drawn (software WebGL), 1280x800."""
+    import socket
+
+    from mvsformerpp.viewer.app import ViewerConfig, start_viewer
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    viewer = start_viewer(out, ViewerConfig(port=port, host="127.0.0.1", max_points=300_000))
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            subprocess.run([_chromium(), "--headless", "--no-sandbox", "--enable-unsafe-swiftshader",
+                            "--hide-scrollbars", f"--user-data-dir={tmp}/profile", "--window-size=1280,800",
+                            f"--virtual-time-budget={seconds * 1000}", f"--screenshot={png}", viewer.url],
+                           capture_output=True, timeout=180, check=False)
+    finally:
+        viewer.stop()
+    if not png.is_file():
+        sys.exit("error: chromium wrote no screenshot of the viewer")
+    Image.open(png).convert("RGB").quantize(256).save(png, optimize=True)
+
+
 def main() -> None:
     if len(sys.argv) != 2 or not (Path(sys.argv[1]) / "report.html").is_file():
         sys.exit(__doc__)
@@ -80,7 +134,9 @@ def main() -> None:
     IMAGES.mkdir(parents=True, exist_ok=True)
     report_png(out, IMAGES / "report.png")
     mesh_png(out, IMAGES / "mesh.png")
-    for name in ("report.png", "mesh.png"):
+    poisson_png(out, IMAGES / "poisson.png")
+    viewer_png(out, IMAGES / "viewer.png")
+    for name in ("report.png", "mesh.png", "poisson.png", "viewer.png"):
         print(f"wrote docs/images/{name} ({(IMAGES / name).stat().st_size / 1024:.0f} KiB)")
 
 

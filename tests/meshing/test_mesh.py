@@ -71,6 +71,61 @@ def test_poisson_watertight_closed_object():
     assert np.abs(radius - 2).max() < 0.02 * 2
 
 
+def test_poisson_merges_samples_far_denser_than_its_cells_and_leaves_far_floaters_out():
+    pytest.importorskip("pymeshlab", reason="the mesh extra (pymeshlab) is not installed")
+    from mvsformerpp.meshing.poisson import PoissonConfig, plan_poisson, screened_poisson
+
+    rng = np.random.default_rng(1)
+    n = rng.normal(size=(200_000, 3))
+    n /= np.linalg.norm(n, axis=1, keepdims=True)
+    xyz = np.concatenate([2 * n, [[300.0, 0.0, 0.0]] * 50])  # a far cluster would stretch the octree 75 times
+    nrm = np.concatenate([n, [[1.0, 0.0, 0.0]] * 50])
+    config = PoissonConfig(depth=6, watertight=True)
+    plan = plan_poisson(xyz, nrm, config)
+    assert not plan.inside[-50:].any() and plan.inside[:-50].all()
+    assert plan.thin == pytest.approx(plan.cell / 2) and plan.points < 200_000 / 3
+    assert plan.cell == pytest.approx(1.1 * 4 / 2**6, rel=0.01)
+    mesh = screened_poisson(xyz, nrm, None, config, plan=plan)
+    radius = np.linalg.norm(mesh.vertices, axis=1)
+    assert np.abs(radius - 2).max() < plan.cell
+
+
+def test_poisson_cuts_the_lid_it_invents_over_an_open_bowl_and_the_blobs_around_floaters():
+    """An open surface, unevenly sampled and noisy, with clusters of floaters, as fused clouds are: the closed
+    Poisson surface adds a lid over the bowl and blobs; the default cut keeps the bowl (every sample
+    still has the surface next to it) and nothing else, where a density percentile leaves part of the lid."""
+    pytest.importorskip("pymeshlab", reason="the mesh extra (pymeshlab) is not installed")
+    from scipy.spatial import cKDTree
+
+    from mvsformerpp.meshing.poisson import PoissonConfig, screened_poisson
+
+    rng = np.random.default_rng(0)
+    d = rng.normal(size=(40_000, 3))
+    d /= np.linalg.norm(d, axis=1, keepdims=True)
+    d = d[d[:, 2] < 0]  # the lower half of the unit sphere, its normals facing inwards (seen from above)
+    d = d[rng.random(len(d)) < np.exp(2.5 * d[:, 2])]  # sparser at the bottom than at the rim
+    bowl, normals = d + rng.normal(0, 0.004, d.shape), -d
+    centres = rng.uniform(-1.2, 1.2, (40, 3))
+    centres = centres[np.abs(np.linalg.norm(centres, axis=1) - 1) > 0.1]
+    floaters = (centres[:, None] + rng.normal(0, 0.01, (len(centres), 8, 3))).reshape(-1, 3)
+    floater_normals = rng.normal(size=floaters.shape)
+    floater_normals /= np.linalg.norm(floater_normals, axis=1, keepdims=True)
+    xyz, nrm = np.concatenate([bowl, floaters]), np.concatenate([normals, floater_normals])
+
+    def invented(config):
+        mesh = screened_poisson(xyz, nrm, None, config)
+        v = mesh.vertices.astype(np.float64)
+        off = (np.abs(np.linalg.norm(v, axis=1) - 1) > 0.05) | (v[:, 2] > 0.05)
+        recall = float((cKDTree(v).query(bowl)[0] < 0.03).mean())
+        return float(off.mean()), recall
+
+    closed, _ = invented(PoissonConfig(depth=7, watertight=True))
+    by_density, _ = invented(PoissonConfig(depth=7, max_distance=0, trim=10, min_fragment=0))
+    cut, recall = invented(PoissonConfig(depth=7))
+    assert closed > 0.05 and by_density > 0.01, (closed, by_density)  # the lid is there to cut
+    assert cut < 0.001 and recall > 0.99, (cut, recall)
+
+
 def test_poisson_mesh_lies_on_the_true_surface(exact_run, tmp_path):
     pytest.importorskip("pymeshlab", reason="the mesh extra (pymeshlab) is not installed")
     out = tmp_path / "poisson.ply"
@@ -97,6 +152,22 @@ def test_a_grid_larger_than_free_memory_is_refused_before_meshing(synth_run, tmp
     err = capsys.readouterr().err
     assert "needs up to 16.0 GB" in err and "2.0 GB free" in err and "at most --resolution 512" in err
     assert not (tmp_path / "m.ply").exists()
+
+
+def test_poisson_states_its_memory_and_refuses_more_than_is_free(exact_run, tmp_path, capsys, monkeypatch):
+    pytest.importorskip("pymeshlab", reason="the mesh extra (pymeshlab) is not installed")
+    import mvsformerpp.inference.resolution as resolution
+
+    monkeypatch.setattr(resolution, "available_memory_bytes", lambda device: 0.05 * 2**30)
+    out = tmp_path / "m.ply"
+    assert main(["mesh", str(exact_run), "-o", str(out), "--method", "poisson", "--depth", "7"]) == 2
+    err = capsys.readouterr().err
+    assert "needs about" in err and "0.1 GB free" in err and "smaller --depth" in err
+    assert not out.exists()
+    monkeypatch.setattr(resolution, "available_memory_bytes", lambda device: 8.0 * 2**30)
+    assert main(["mesh", str(exact_run), "-o", str(out), "--method", "poisson", "--depth", "7"]) == 0
+    said = capsys.readouterr().out
+    assert "octree depth 7" in said and "GB" in said.split("octree depth 7")[1].splitlines()[0]
 
 
 def test_the_default_grid_follows_the_sampling_and_ignores_floaters(exact_run, tmp_path, capsys):

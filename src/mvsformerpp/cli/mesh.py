@@ -28,8 +28,11 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="tsdf: ignore depths at or below this confidence (default 0)")
     p.add_argument("--depth", type=int, default=10, help="poisson: octree depth (default 10)")
     p.add_argument("--watertight", action="store_true", help="poisson: keep the closed surface (no trimming)")
-    p.add_argument("--trim", type=float, default=10.0, metavar="PERCENT",
-                   help="poisson: cut the lowest-density PERCENT of vertices (default 10)")
+    p.add_argument("--max-distance", type=float, default=2.0, metavar="CELLS",
+                   help="poisson: cut the surface farther than CELLS from every point (in the larger of the "
+                        "point spacing and the octree cell; default 2, 0 = keep)")
+    p.add_argument("--trim", type=float, default=0.0, metavar="PERCENT",
+                   help="poisson: also cut the lowest-density PERCENT of vertices (default 0)")
     p.add_argument("--threads", type=int, default=1, help="poisson: worker threads (default 1)")
     p.add_argument("--device", default="cpu", help="tsdf: torch device (cpu, cuda)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -68,12 +71,15 @@ def run(args: argparse.Namespace) -> int:
                          f"depth 10 meshes a scene at 1/1000 of its size), got {args.depth}")
     if not 0 <= args.trim < 100:
         raise InputError(f"--trim must be a percentage in [0, 100), got {args.trim}")
+    if not (math.isfinite(args.max_distance) and args.max_distance >= 0):
+        raise InputError(f"--max-distance must be a number of cells >= 0 (0 keeps everything), got {args.max_distance}")
     if args.threads < 1:
         raise InputError(f"--threads must be at least 1, got {args.threads}")
     config = MeshConfig(
         method=args.method, device=args.device,
         tsdf=TSDFConfig(voxel=args.voxel, resolution=args.resolution, truncation=args.truncation,
                         min_confidence=args.min_conf),
-        poisson=PoissonConfig(depth=args.depth, watertight=args.watertight, trim=args.trim, threads=args.threads))
+        poisson=PoissonConfig(depth=args.depth, watertight=args.watertight,
+                                    max_distance=args.max_distance, trim=args.trim, threads=args.threads))
     make_mesh(args.folder, args.output, config, quiet=args.quiet)
     return 0

@@ -48,7 +48,7 @@ def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = Mesh
         raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", folder)
     with claim_output_file(out_ply, b"ply", "PLY mesh"):
         t0 = time.perf_counter()
-        mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config)
+        mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config, quiet)
         if len(mesh.faces) == 0:
             raise InputError("the mesh came out empty: the depth maps agree nowhere; check them in report.html",
                              folder)
@@ -94,14 +94,34 @@ def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
     return marching_cubes(volume)
 
 
-def _poisson_mesh(folder: Path, config: MeshConfig) -> Mesh:
+def _poisson_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
+    import torch
+
+    from mvsformerpp.inference.resolution import available_memory_bytes
     from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
-    from mvsformerpp.meshing.poisson import screened_poisson
+    from mvsformerpp.meshing.poisson import plan_poisson, screened_poisson
 
     ply = require_cloud(folder)
     vertex = read_ply(ply)
     if not all(k in vertex for k in ("nx", "ny", "nz")):
         raise InputError("fused.ply has no normals (an older fusion); run `mvsformerpp fuse OUT` again to add "
                          "them", ply)
-    normals = np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1)
-    return screened_poisson(ply_points(vertex, ply), normals, ply_colors(vertex), config.poisson)
+    xyz, normals = ply_points(vertex, ply), np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1)
+    plan = plan_poisson(xyz, normals, config.poisson)
+    need, have = plan.memory_bytes, available_memory_bytes(torch.device("cpu"))
+    if need > have:
+        raise InputError(f"screened Poisson at --depth {config.poisson.depth} needs about {need / 2**30:.1f} GB "
+                         f"({plan.points:,} points, {plan.occupied:,} occupied cells), more than the "
+                         f"{have / 2**30:.1f} GB free; choose a smaller --depth (each level less needs about a "
+                         "quarter of the cells)", ply)
+    if not quiet:
+        outside = len(xyz) - int(plan.inside.sum())
+        thin = f", merged to one per {plan.thin:.4g} cube" if plan.thin is not None else ""
+        print(f"Poisson: {plan.points:,} points of {len(xyz):,} ({outside:,} outside the surface's box or without "
+              f"a normal{thin}), octree depth {config.poisson.depth} (cell {plan.cell:.4g}), about "
+              f"{need / 2**30:.2f} GB", flush=True)
+    t0 = time.perf_counter()
+    mesh = screened_poisson(xyz, normals, ply_colors(vertex), config.poisson, plan=plan)
+    if not quiet:
+        print(f"Poisson: surface and trimming in {time.perf_counter() - t0:.1f} s", flush=True)
+    return mesh
