@@ -80,6 +80,6 @@ def run(args: argparse.Namespace) -> int:
         tsdf=TSDFConfig(voxel=args.voxel, resolution=args.resolution, truncation=args.truncation,
                         min_confidence=args.min_conf),
         poisson=PoissonConfig(depth=args.depth, watertight=args.watertight,
-                                    max_distance=args.max_distance, trim=args.trim, threads=args.threads))
+                              max_distance=args.max_distance, trim=args.trim, threads=args.threads))
     make_mesh(args.folder, args.output, config, quiet=args.quiet)
     return 0
