@@ -52,8 +52,9 @@ def _import_pymeshlab():
 
 
 BYTES_PER_POINT, BYTES_PER_CELL, BYTES_FIXED = 400, 3000, 100 * 2**20
-"""MeshLab's screened Poisson's peak memory, fitted on fused clouds (the demo's temple at depths 8-10, within
-5 %): a fixed part, per sample, and per octree cell at the finest depth that holds a sample."""
+"""MeshLab's screened Poisson's peak memory, fitted on a fused cloud (the demo's temple at depths 8-10, where it
+is 7-15 % above the measured peak): a fixed part, per sample, and per octree cell at the finest depth that holds
+a sample."""
 
 
 @dataclass(frozen=True)
