@@ -13,6 +13,7 @@ from __future__ import annotations
 import numpy as np
 
 from mvsformerpp.evaluation.distances import build_tree
+from mvsformerpp.geometry.voxels import voxel_means
 
 #: Points whose neighbourhoods are searched per KD-tree call (bounds memory on dense clouds).
 THIN_CHUNK = 1 << 17
@@ -55,13 +56,4 @@ def voxel_downsample(points: np.ndarray, voxel: float) -> np.ndarray:
     The grid starts at ``points.min(0) - voxel/2``; output rows are sorted by voxel index, so the
     result does not depend on the input order. Returns [V,3].
     """
-    if not voxel > 0:
-        raise ValueError(f"voxel size must be positive, got {voxel}")
-    origin = points.min(axis=0) - voxel / 2
-    idx = np.floor((points - origin) / voxel).astype(np.int64)
-    _, inverse, counts = np.unique(idx, axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    sums = np.zeros((len(counts), 3))
-    for c in range(3):
-        sums[:, c] = np.bincount(inverse, weights=points[:, c], minlength=len(counts))
-    return sums / counts[:, None]
+    return voxel_means(points, voxel, origin=points.min(axis=0) - voxel / 2)[0]

@@ -18,6 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from mvsformerpp.errors import InputError, MissingDependencyError
+from mvsformerpp.geometry.voxels import count_voxels, voxel_means
 from mvsformerpp.meshing.extract import Mesh
 
 
@@ -89,31 +90,12 @@ def plan_poisson(xyz: np.ndarray, normals: np.ndarray, config: PoissonConfig = P
     inside = oriented & (xyz >= lo).all(axis=1) & (xyz <= hi).all(axis=1)
     pts = xyz[inside].astype(np.float64)
     cell = 1.1 * float(np.ptp(pts, axis=0).max()) / 2**config.depth
-    occupied = _count_cells(pts, cell)
+    occupied = count_voxels(pts, cell)
     thin, n = None, len(pts)
     if n > 4 * occupied:  # far more samples than cells: their means at half a cell make the same surface
         thin = cell / 2
-        n = _count_cells(pts, thin)
+        n = count_voxels(pts, thin)
     return PoissonPlan(inside, cell, thin, n, occupied)
-
-
-def _cell_index(points: np.ndarray, size: float) -> np.ndarray:
-    return np.floor((points - points.min(axis=0)) / size).astype(np.int64)
-
-
-def _count_cells(points: np.ndarray, size: float) -> int:
-    return len(np.unique(_cell_index(points, size), axis=0))
-
-
-def _cell_means(points: np.ndarray, values: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """The mean point and mean ``values`` [N, C] of the points in each occupied cube of ``size``."""
-    _, inverse, counts = np.unique(_cell_index(points, size), axis=0, return_inverse=True, return_counts=True)
-    inverse = inverse.ravel()
-    both = np.concatenate([points, values], axis=1)
-    sums = np.stack([np.bincount(inverse, weights=both[:, c], minlength=len(counts)) for c in range(both.shape[1])],
-                    axis=1)
-    means = sums / counts[:, None]
-    return means[:, :3], means[:, 3:]
 
 
 def screened_poisson(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray | None = None,
@@ -126,7 +108,7 @@ def screened_poisson(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray | 
     rgb = None if colors is None else colors[plan.inside].astype(np.float64) / 255.0
     if plan.thin is not None:
         values = nrm if rgb is None else np.concatenate([nrm, rgb], axis=1)
-        pts, values = _cell_means(pts, values, plan.thin)
+        pts, values = voxel_means(pts, plan.thin, values)
         nrm, rgb = values[:, :3], (None if rgb is None else values[:, 3:])
         length = np.linalg.norm(nrm, axis=1, keepdims=True)
         pts, nrm, rgb = (a[length[:, 0] > 1e-3] if a is not None else None for a in (pts, nrm, rgb))
