@@ -113,3 +113,36 @@ def test_texture_sampling_is_bilinear_and_mirrored():
     uv = np.array([[0.5, 0.5], [1.0, 0.5], [4.5, 0.5], [-0.5, 0.5]])  # texel centre, halfway, mirrored edges
     rgb = photos.sample_texture(levels, uv, np.ones(4))[:, 0] * 255
     np.testing.assert_allclose(rgb, [0, 5, 30, 0], atol=1e-9)
+
+
+def test_the_sky_is_at_infinity_and_never_supervised():
+    """Sky pixels depend on the ray's direction only: two cameras with the same orientation at different
+    places see the same sky colour at the same pixel, and its depth is 0 (unknown)."""
+    from mvsformerpp.synth.render import Camera, Sky, Surface, SynthScene, look_at
+    from mvsformerpp.synth.shapes import Plane
+
+    sky = Sky(np.array([0.8, 0.8, 0.9]), np.array([0.2, 0.4, 0.9]), clouds=1.0, seed=3)
+    ground = Surface(Plane(np.array([0, 0, 1.0]), -0.75), "noise", np.array([[0.1, 0.2, 0.1], [0.8, 0.7, 0.5]]), 5)
+    K = np.array([[30.0, 0, 16], [0, 30.0, 12], [0, 0, 1]])
+    R, _ = look_at(np.zeros(3), np.array([1.0, 0, 0.1]))
+    cams = [Camera(K, R, -R @ c) for c in (np.zeros(3), np.array([0.0, 2.0, 0.5]))]
+    scene = SynthScene([ground], cams, 32, 24, sky=sky)
+    (a, da, _), (b, db, _) = render_view(scene, cams[0]), render_view(scene, cams[1])
+    sky_px = (da == 0) & (db == 0)
+    assert sky_px.mean() > 0.3 and (da > 0).any()
+    np.testing.assert_array_equal(a[sky_px], b[sky_px])
+    assert a[sky_px].std() > 2  # a gradient and clouds, not one flat colour
+    assert not np.array_equal(a[da > 0], b[da > 0])  # the ground, at finite depth, moves between the views
+
+
+def test_streets_show_sky_and_scenes_hold_thin_structures():
+    sky_views = 0
+    for seed in range(12):
+        scene = training_scene(seed, num_views=2, height=24, width=32, layout="facade")
+        depth = render_view(scene, scene.cameras[0])[1]
+        sky_views += scene.sky is not None and (depth == 0).mean() > 0.05
+    assert sky_views >= 3
+    thin = [s for seed in range(8) for s in training_scene(seed, num_views=2, height=24, width=32,
+                                                           layout="table").surfaces
+            if isinstance(s.shape, Cylinder) and s.shape.radius < 0.013]
+    assert len(thin) >= 4

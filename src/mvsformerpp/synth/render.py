@@ -15,7 +15,7 @@ import numpy as np
 
 from mvsformerpp.synth.photos import LEVELS, sample_texture
 from mvsformerpp.synth.shapes import may_hit
-from mvsformerpp.synth.textures import albedo
+from mvsformerpp.synth.textures import albedo, fractal_noise
 
 TEXTURES = ("noise", "checker", "stripes", "marble", "flat")
 LIGHT = np.array([0.4, -0.5, 0.77]) / np.linalg.norm([0.4, -0.5, 0.77])
@@ -64,6 +64,29 @@ class Camera:
 
 
 @dataclass
+class Sky:
+    """What rays that hit nothing see outdoors: a sky at infinity, a function of the ray's direction only,
+    so every view sees it alike (no parallax, as real sky and far background) while its depth stays
+    unknown (0, never supervised): a gradient from the horizon to the zenith and soft clouds."""
+
+    horizon: np.ndarray
+    zenith: np.ndarray
+    clouds: float = 0.0
+    """Cloud cover strength in [0, 1]."""
+    seed: int = 0
+
+    def colour(self, dirs: np.ndarray) -> np.ndarray:
+        """RGB [N,3] of rays [N,3] (any length)."""
+        d = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
+        up = np.sqrt(np.clip(d[:, 2], 0, 1))[:, None]
+        rgb = self.horizon * (1 - up) + self.zenith * up
+        if self.clouds > 0:
+            cover = (np.clip((fractal_noise(d, self.seed, octaves=4, base_freq=3.0) - 0.5) * 4, 0, 1) * self.clouds)
+            rgb = rgb * (1 - cover[:, None]) + 0.92 * cover[:, None]
+        return rgb
+
+
+@dataclass
 class SynthScene:
     surfaces: list[Surface]
     cameras: list[Camera]
@@ -74,7 +97,9 @@ class SynthScene:
     """Unit direction towards the (directional) light, fixed in the world."""
     ambient: float = 0.35
     background: np.ndarray = field(default_factory=lambda: np.zeros(3))
-    """Colour of rays that hit nothing (their depth is 0: invalid)."""
+    """Colour of rays that hit nothing (their depth is 0: invalid), where the scene has no :attr:`sky`."""
+    sky: Sky | None = None
+    """Outdoor scenes: what rays that hit nothing see (depth 0 all the same)."""
     supersample: int = 1
     """Colour samples per pixel side (2 = 4 rays per pixel, anti-aliased); depth is always at the centre."""
     textures: tuple = ()
@@ -202,6 +227,8 @@ def _colour(scene: SynthScene, cam: Camera, dirs: np.ndarray, t: np.ndarray, sur
     hit = np.isfinite(t)
     pts = cam.center + np.where(hit, t, 0)[:, None] * dirs
     rgb = np.broadcast_to(scene.background, pts.shape).copy()
+    if scene.sky is not None and not hit.all():
+        rgb[~hit] = scene.sky.colour(dirs[~hit])
     if hit.any():
         to_cam = cam.center - pts[hit]
         dist = np.linalg.norm(to_cam, axis=1, keepdims=True)
