@@ -96,8 +96,12 @@ class TrainConfig:
     """Declared (low, high) image shift per depth plane at stage 4, in input pixels, that the training
     views cover: a run starts only if the 10th-90th percentiles of sampled views lie inside it
     (:mod:`mvsformerpp.training.parallax`). None: no check."""
+    min_overlap: float | None = None
+    """Declared least share of the reference's valid pixels that a source view sees (inside its image, in
+    front of it), as the median over sampled views: windows cut around different places of a scene
+    overlap too little to match. None: no check."""
     parallax_samples: int = 32
-    """Training samples the ``parallax_range`` check draws."""
+    """Training samples the ``parallax_range`` and ``min_overlap`` checks draw."""
     # ---- optimisation
     batch_size: int = 4
     """Global batch (all processes together); the reference: 16 on 4 GPUs."""
@@ -173,8 +177,8 @@ class TrainConfig:
 
 
 # Fields that may change when a run resumes: they do not touch the training trajectory.
-RESUMABLE_CHANGES = frozenset({"parallax_range", "parallax_samples", "num_workers", "val_every", "val_samples",
-                               "log_every", "save_every", "tensorboard",
+RESUMABLE_CHANGES = frozenset({"parallax_range", "min_overlap", "parallax_samples", "num_workers", "val_every",
+                               "val_samples", "log_every", "save_every", "tensorboard",
                                "progress", "data_root", "dtu_root"})
 
 # The reference's 25 multi-scale resolutions (512x640 ... 1024x1280, three widths per height from 512 to
@@ -387,6 +391,8 @@ def check_config(config: TrainConfig) -> TrainConfig:
         resolve_source(config.synthetic_source)
     if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
         raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
+    if config.min_overlap is not None and not 0 <= config.min_overlap <= 1:
+        raise InputError(f"min_overlap {config.min_overlap} must be a share between 0 and 1")
     if config.parallax_samples < 1:
         raise InputError(f"parallax_samples must be at least 1, got {config.parallax_samples}")
     return config

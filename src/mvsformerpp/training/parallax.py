@@ -11,7 +11,10 @@ A view set's shift at a stage is the median over its source views of each view's
 reference's valid pixels. A training recipe whose views have far smaller shifts than the photos the
 network is used on never trains its fine stages; :func:`recipe_shifts` samples a recipe's views and
 :func:`check_parallax` refuses a recipe whose views fall outside the range it declares
-(``parallax_range``).
+(``parallax_range``). Shifts only help where the views see the same points: a view set's overlap is the
+share of the reference's valid pixels whose true point lies inside a source image, in front of it, as the
+mean over its source views (:func:`view_overlap`); ``min_overlap`` declares the least median overlap a
+recipe accepts.
 
 ``python -m mvsformerpp.training.parallax RECIPE_OR_CONFIG [--samples N] [--set key=value ...]`` prints the
 distribution for a recipe; ``--scene DIR`` for an MVSNet-layout folder with depth maps.
@@ -83,17 +86,48 @@ def view_shifts(K_ref, E_ref, K_src, E_src, depth: np.ndarray, depth_min: float,
     return np.asarray(out)
 
 
+def view_overlap(K_ref, E_ref, K_src, E_src, depth: np.ndarray, src_size: tuple[int, int]) -> float:
+    """Share of the reference's valid pixels (``depth`` > 0) whose true point lies inside the source image of
+    ``src_size`` = (height, width) pixels and in front of it (occlusion is not tested). NaN without valid pixels."""
+    import torch
+
+    from mvsformerpp.geometry.camera import depth_to_points, project
+
+    valid = depth > 0
+    if not valid.any():
+        return float("nan")
+    t = lambda a: torch.as_tensor(np.asarray(a, np.float64))  # noqa: E731
+    points = depth_to_points(t(depth), t(K_ref), t(E_ref))[torch.from_numpy(valid)]
+    u, v, z = project(t(K_src), t(E_src), points)
+    h, w = src_size
+    inside = (z > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    return float(inside.double().mean())
+
+
+def _supervised(view) -> np.ndarray:
+    return view.depth * (view.mask if view.mask is not None else 1)
+
+
 def viewset_shifts(views, depth_min: float, depth_max: float, steps: np.ndarray | None = None) -> np.ndarray:
     """A view set's shift per stage: the median over its source views (``views[0]`` the reference with depth)."""
     ref = views[0]
-    per_view = np.stack([view_shifts(ref.K, ref.E, v.K, v.E, ref.depth * (ref.mask if ref.mask is not None else 1),
-                                     depth_min, depth_max, steps) for v in views[1:]])
+    per_view = np.stack([view_shifts(ref.K, ref.E, v.K, v.E, _supervised(ref), depth_min, depth_max, steps)
+                         for v in views[1:]])
     return np.nanmedian(per_view, axis=0)
 
 
-def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray]:
-    """(shifts [samples, 4], focal lengths [samples]) of a training config's views as training feeds them:
-    evenly spaced samples of the training set, each at the next of the recipe's resolutions."""
+def viewset_overlap(views) -> float:
+    """A view set's overlap: the mean over its source views of :func:`view_overlap` (``views[0]`` the
+    reference with depth; each source's image gives its size)."""
+    ref = views[0]
+    return float(np.nanmean([view_overlap(ref.K, ref.E, v.K, v.E, _supervised(ref), v.image.shape[:2])
+                             for v in views[1:]]))
+
+
+def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(shifts [samples, 4], focal lengths [samples], overlaps [samples]) of a training config's views as
+    training feeds them: evenly spaced samples of the training set, each at the next of the recipe's
+    resolutions."""
     from mvsformerpp.data.base import SampleKey
     from mvsformerpp.models.config import get_config
     from mvsformerpp.training.datasets import build_datasets
@@ -103,18 +137,21 @@ def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray]:
     train, _ = build_datasets(config)
     sizes = list(config.resolutions) or [(config.height, config.width)]
     picks = np.linspace(0, len(train) - 1, samples).astype(np.int64)
-    shifts, focals = [], []
+    shifts, focals, overlaps = [], [], []
     for k, index in enumerate(picks):
         h, w = sizes[k % len(sizes)]
         vs = train.views(SampleKey(int(index), int(h), int(w)))
         shifts.append(viewset_shifts(vs.views, vs.depth_min, vs.depth_max, steps))
         focals.append(float(vs.views[0].K[0, 0]))
-    return np.stack(shifts), np.asarray(focals)
+        overlaps.append(viewset_overlap(vs.views))
+    return np.stack(shifts), np.asarray(focals), np.asarray(overlaps)
 
 
-def scene_shifts(folder, max_size: int | None = None, steps: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """(shifts [4], median focal) of an MVSNet-layout folder whose cams come with ``depth_map_NNNN.pfm``
-    ground truth of the cams' resolution: every view with depth is a reference, all others its sources.
+def scene_shifts(folder, max_size: int | None = None,
+                 steps: np.ndarray | None = None) -> tuple[np.ndarray, float, float]:
+    """(shifts [4], median focal, median overlap) of an MVSNet-layout folder whose cams come with
+    ``depth_map_NNNN.pfm`` ground truth of the cams' resolution: every view with depth is a reference, all
+    others its sources (a source without a depth map has no known image size: no overlap).
     ``max_size``: the working size (longest side) the photos run at (default: the depth maps' size)."""
     from pathlib import Path
 
@@ -131,55 +168,70 @@ def scene_shifts(folder, max_size: int | None = None, steps: np.ndarray | None =
         cam = read_cam(path)
         found = sorted(folder.glob(f"depth_map_{i:04d}.pfm")) + sorted(folder.glob(f"depths/depth_map_{i:04d}.pfm"))
         depth = read_pfm(found[0]) if found else None
-        views.append(ViewData(np.zeros((1, 1, 3), np.uint8), np.asarray(cam.K, np.float64),
+        size = depth.shape if depth is not None else (0, 0)  # the image the cam's K belongs to
+        views.append(ViewData(np.broadcast_to(np.zeros(1, np.uint8), (*size, 3)), np.asarray(cam.K, np.float64),
                               np.asarray(cam.extrinsic, np.float64), depth))
         ranges.append((cam.depth_min, cam.depth_max))
         if depth is not None:
             scales.append(1.0 if max_size is None else max_size / max(depth.shape))
-    out = []
+    out, overlaps = [], []
     for r, ref in enumerate(views):
         if ref.depth is None or ranges[r][0] is None:
             continue
         others = [v for j, v in enumerate(views) if j != r]
         out.append(viewset_shifts([ref] + others, *ranges[r], steps) * scales[len(out)])
+        sized = [v for v in others if v.image.shape[0] > 0]
+        overlaps.append(viewset_overlap([ref] + sized) if sized else float("nan"))
     if not out:
         raise InputError(f"{folder}: no depth_map_NNNN.pfm with a depth range in its cam file; the shifts need "
                          "true depth")
-    return np.nanmedian(np.stack(out), axis=0), float(np.median([v.K[0, 0] for v in views]) * np.median(scales))
+    focal = float(np.median([v.K[0, 0] for v in views]) * np.median(scales))
+    return np.nanmedian(np.stack(out), axis=0), focal, float(np.nanmedian(overlaps))
 
 
 def check_parallax(config, samples: int | None = None) -> np.ndarray | None:
     """Refuse a config whose training views fall outside its declared ``parallax_range`` (stage-4 pixels):
-    the 10th and 90th percentiles of the sampled views' stage-4 shift must lie inside it. Returns the
-    sampled shifts (None when the config declares no range)."""
-    if config.parallax_range is None:
+    the 10th and 90th percentiles of the sampled views' stage-4 shift must lie inside it; and, where it
+    declares ``min_overlap``, views whose median overlap is below it. Returns the sampled shifts (None when
+    the config declares neither)."""
+    if config.parallax_range is None and config.min_overlap is None:
         return None
-    lo, hi = config.parallax_range
-    shifts, _ = recipe_shifts(config, samples or config.parallax_samples)
-    p10, p90 = np.nanpercentile(shifts[:, 3], [10, 90])
-    if p10 < lo or p90 > hi:
-        raise InputError(
-            f"the recipe's training views have stage-4 shifts of {p10:.2f}-{p90:.2f} px per plane (10th-90th "
-            f"percentile of {len(shifts)} samples), outside its declared parallax_range [{lo:g}, {hi:g}]; change "
-            "the views (synthetic_options: sensor_width, resolutions) or the declared range "
-            "(python -m mvsformerpp.training.parallax RECIPE prints the distribution)")
+    shifts, _, overlaps = recipe_shifts(config, samples or config.parallax_samples)
+    fix = ("change the views (synthetic_options: sensor_width, resolutions) or the declaration "
+           "(python -m mvsformerpp.training.parallax RECIPE prints the distribution)")
+    if config.parallax_range is not None:
+        lo, hi = config.parallax_range
+        p10, p90 = np.nanpercentile(shifts[:, 3], [10, 90])
+        if p10 < lo or p90 > hi:
+            raise InputError(
+                f"the recipe's training views have stage-4 shifts of {p10:.2f}-{p90:.2f} px per plane (10th-90th "
+                f"percentile of {len(shifts)} samples), outside its declared parallax_range [{lo:g}, {hi:g}]; {fix}")
+    if config.min_overlap is not None:
+        median = float(np.nanmedian(overlaps))
+        if not median >= config.min_overlap:
+            raise InputError(
+                f"the recipe's source views see a median {100 * median:.0f} % of the reference's pixels "
+                f"({len(overlaps)} samples; 10th percentile {100 * np.nanpercentile(overlaps, 10):.0f} %), below its "
+                f"declared min_overlap {config.min_overlap:g}; {fix}")
     return shifts
 
 
-def format_table(rows: dict[str, tuple[np.ndarray, np.ndarray | float]]) -> str:
-    """Rows of (shifts [N, 4] or [4], focal(s)) as a text table: percentiles for sampled rows."""
+def format_table(rows: dict[str, tuple]) -> str:
+    """Rows of (shifts [N, 4] or [4], focal(s), overlap(s)) as a text table: percentiles for sampled rows."""
     n = max([34, *(len(name) for name in rows)])
-    lines = [f"{'':{n}s} {'stage 1':>16s} {'stage 2':>16s} {'stage 3':>16s} {'stage 4':>16s} {'focal (px)':>16s}",
-             f"{'(px per plane, own resolution)':{n}s}" + "".join(f"{'p10/p50/p90':>17s}" for _ in range(5))]
-    for name, (shifts, focal) in rows.items():
+    lines = [f"{'':{n}s} {'stage 1':>16s} {'stage 2':>16s} {'stage 3':>16s} {'stage 4':>16s} {'focal (px)':>16s}"
+             f" {'overlap (%)':>16s}",
+             f"{'(px per plane, own resolution)':{n}s}" + "".join(f"{'p10/p50/p90':>17s}" for _ in range(6))]
+    for name, (shifts, focal, overlap) in rows.items():
         shifts = np.atleast_2d(shifts)
-        focal = np.atleast_1d(focal)
+        focal, overlap = np.atleast_1d(focal), 100 * np.atleast_1d(overlap)
         if len(shifts) == 1:
-            cells = [f"{v:16.2f}" for v in shifts[0]] + [f"{np.median(focal):16.0f}"]
+            cells = [f"{v:16.2f}" for v in shifts[0]] + [f"{np.median(focal):16.0f}", f"{overlap[0]:16.0f}"]
         else:
             cells = ["{:>16s}".format("/".join(f"{v:.2f}" for v in np.nanpercentile(shifts[:, k], PERCENTILES)))
                      for k in range(shifts.shape[1])]
-            cells.append("{:>16s}".format("/".join(f"{v:.0f}" for v in np.percentile(focal, PERCENTILES))))
+            cells += ["{:>16s}".format("/".join(f"{v:.0f}" for v in np.nanpercentile(x, PERCENTILES)))
+                      for x in (focal, overlap)]
         lines.append(f"{name:{n}s} " + " ".join(cells))
     return "\n".join(lines)
 
