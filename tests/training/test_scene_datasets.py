@@ -179,3 +179,34 @@ def test_blended_finetune_takes_a_dtu_list_for_part_of_dtu(tmp_path):
     blended, dtu_part = train.datasets
     assert len(blended) == N and len(dtu_part) == 2 * N * len(cfg.light_ids)  # both scans, every light
     assert len(val) == N  # scan4, one light
+
+
+def test_a_synthetic_reference_that_sees_nothing_hands_over_to_the_next_camera():
+    """One camera of a random scene may see only sky: its samples take the scene's next camera as the
+    reference instead of stopping a long run; a scene no camera sees anything of is an error."""
+    from mvsformerpp.data import SyntheticDataset
+    from mvsformerpp.synth.render import Camera, Surface, SynthScene, look_at
+    from mvsformerpp.synth.shapes import Sphere
+
+    def one_blind(seed, num_views, height, width, blind=(1,)):
+        """A textured ball seen from a ring; the ``blind`` cameras look away from it, at nothing."""
+        ball = Surface(Sphere(np.zeros(3), 1.0), "noise", np.array([[0.1, 0.2, 0.3], [0.9, 0.8, 0.6]]), seed)
+        K = np.array([[40.0, 0, width / 2], [0, 40.0, height / 2], [0, 0, 1]])
+        cams = []
+        for i in range(num_views):
+            c = 4 * np.array([np.cos(0.3 * i), np.sin(0.3 * i), 0.2])
+            R, t = look_at(c, 2 * c if i in blind else np.zeros(3))
+            cams.append(Camera(K, R, t))
+        return SynthScene([ball], cams, width, height)
+
+    ds = SyntheticDataset(1, num_views=3, views_per_scene=4, source=one_blind)
+    handed = ds.load_views(1, np.random.default_rng(0), 24, 32)  # sample 1: camera 1 is blind
+    normal = ds.load_views(2, np.random.default_rng(0), 24, 32)  # sample 2: camera 2, as the hand-over
+    assert (handed.views[0].depth > 0).any()
+    np.testing.assert_array_equal(handed.views[0].depth, normal.views[0].depth)
+    np.testing.assert_array_equal(handed.views[0].E, normal.views[0].E)
+
+    blind = SyntheticDataset(1, num_views=3, views_per_scene=3,
+                             source=lambda **kw: one_blind(**kw, blind=range(kw["num_views"])))
+    with pytest.raises(InputError, match="no view of the scene sees anything"):
+        blind.load_views(0, np.random.default_rng(0), 24, 32)

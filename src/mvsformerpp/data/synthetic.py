@@ -103,19 +103,27 @@ class SyntheticDataset(MVSDataset):
         h, w = round(height * self.render_scale), round(width * self.render_scale)
         scene = self.source(seed=self.scene_seed + scene_idx, num_views=self.views_per_scene, height=h, width=w,
                             **self.options)
+        # A random scene may have a view that sees nothing (a window of sky): the next camera of the
+        # scene is the reference then, so that one odd sample does not end a run of hours.
+        for attempt in range(len(scene.cameras)):
+            first = render_view(scene, scene.cameras[(ref + attempt) % len(scene.cameras)])
+            if (first[1] > 0).any():
+                ref = (ref + attempt) % len(scene.cameras)
+                break
+        else:
+            raise InputError(f"{self.describe(index)}: no view of the scene sees anything (the scene source "
+                             f"{getattr(self.source, '__name__', self.source)!r} made an empty scene)")
         centers = np.stack([c.center for c in scene.cameras])
         cands = neighbour_order(centers, ref)[: self.num_candidates]
         srcs = [cands[j] for j in rng.permutation(len(cands))[: self.num_views - 1]]
         views = []
         for k, i in enumerate([ref] + srcs):
             cam = scene.cameras[i]
-            image, depth, _ = render_view(scene, cam)
+            image, depth, _ = first if k == 0 else render_view(scene, cam)
             E = np.eye(4)
             E[:3, :3], E[:3, 3] = cam.R, cam.t
             if k == 0:
                 valid = depth > 0
-                if not valid.any():
-                    raise InputError(f"{self.describe(index)}: the reference view sees nothing")
                 lo, hi = self.range_margin
                 m_near, m_far = (lo, lo) if lo == hi else rng.uniform(lo, hi, size=2)
                 near, far = float(depth[valid].min()), float(depth[valid].max())
