@@ -183,7 +183,8 @@ def test_blended_finetune_takes_a_dtu_list_for_part_of_dtu(tmp_path):
 
 def test_a_synthetic_reference_that_sees_nothing_hands_over_to_the_next_camera():
     """One camera of a random scene may see only sky: its samples take the scene's next camera as the
-    reference instead of stopping a long run; a scene no camera sees anything of is an error."""
+    reference instead of stopping a long run (a scene no camera sees anything of: the next scene); a source
+    whose scenes never show anything is an error."""
     from mvsformerpp.data import SyntheticDataset
     from mvsformerpp.synth.render import Camera, Surface, SynthScene, look_at
     from mvsformerpp.synth.shapes import Sphere
@@ -208,5 +209,5 @@ def test_a_synthetic_reference_that_sees_nothing_hands_over_to_the_next_camera()
 
     blind = SyntheticDataset(1, num_views=3, views_per_scene=3,
                              source=lambda **kw: one_blind(**kw, blind=range(kw["num_views"])))
-    with pytest.raises(InputError, match="no view of the scene sees anything"):
+    with pytest.raises(InputError, match="and the 7 scenes after it: no camera sees anything"):
         blind.load_views(0, np.random.default_rng(0), 24, 32)

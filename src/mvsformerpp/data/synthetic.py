@@ -24,6 +24,8 @@ from mvsformerpp.errors import InputError
 
 DEFAULT_SOURCE = "mvsformerpp.synth:random_scene"
 SOURCE_ARGS = ("seed", "num_views", "height", "width")
+EMPTY_SCENE_TRIES = 8
+"""Scenes (this one and the next seeds) a sample tries before it gives up on a source that sees nothing."""
 """The keywords every scene source is called with."""
 
 
@@ -101,18 +103,26 @@ class SyntheticDataset(MVSDataset):
 
         scene_idx, ref = divmod(index, self.views_per_scene)
         h, w = round(height * self.render_scale), round(width * self.render_scale)
-        scene = self.source(seed=self.scene_seed + scene_idx, num_views=self.views_per_scene, height=h, width=w,
-                            **self.options)
-        # A random scene may have a view that sees nothing (a window of sky): the next camera of the
-        # scene is the reference then, so that one odd sample does not end a run of hours.
-        for attempt in range(len(scene.cameras)):
-            first = render_view(scene, scene.cameras[(ref + attempt) % len(scene.cameras)])
-            if (first[1] > 0).any():
-                ref = (ref + attempt) % len(scene.cameras)
+        # A random scene may have a view that sees nothing (a window of sky): the next camera of the scene
+        # is the reference then, and the next scene where no camera sees anything, so that one odd sample
+        # does not end a run of hours.
+        for offset in range(EMPTY_SCENE_TRIES):
+            scene = self.source(seed=self.scene_seed + scene_idx + offset, num_views=self.views_per_scene,
+                                height=h, width=w, **self.options)
+            n = len(scene.cameras)
+            sighted = None
+            for a in range(n):
+                first = render_view(scene, scene.cameras[(ref + a) % n])
+                if first[1].any():
+                    sighted = (ref + a) % n
+                    break
+            if sighted is not None:
+                ref = sighted
                 break
         else:
-            raise InputError(f"{self.describe(index)}: no view of the scene sees anything (the scene source "
-                             f"{getattr(self.source, '__name__', self.source)!r} made an empty scene)")
+            raise InputError(f"{self.describe(index)} and the {EMPTY_SCENE_TRIES - 1} scenes after it: no camera "
+                             f"sees anything (the scene source {getattr(self.source, '__name__', self.source)!r} "
+                             "makes empty scenes)")
         centers = np.stack([c.center for c in scene.cameras])
         cands = neighbour_order(centers, ref)[: self.num_candidates]
         srcs = [cands[j] for j in rng.permutation(len(cands))[: self.num_views - 1]]

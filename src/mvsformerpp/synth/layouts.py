@@ -118,28 +118,34 @@ def _cut_windows(rng: np.random.Generator, scene: SynthScene, sensor: tuple[int,
 
     A real training crop is a window of a high-resolution photo: a long focal length in pixels, and so
     the image shift per depth hypothesis that real photos have. All windows look at one anchor, a surface
-    point seen near a random spot of one photo and, of 32 such candidates, the first that every photo
-    sees unoccluded (else the one most photos see). Each window is placed around the anchor's projection
-    with a random offset of at most :data:`WINDOW_JITTER` of its size and kept inside its photo, so the
-    views overlap as crops around one place of a scene do: where the windows were placed with a quarter
-    of their size of offset around an anchor that some photos did not see, a reference pixel was inside
-    a source window for half of the pixels only (0.50 against 0.79 for whole small photos).
+    point seen near a random spot of one photo (the next photo where all 32 candidate rays miss) and, of
+    those candidates, the first that every photo sees unoccluded (else the one most photos see). Each
+    window is placed around the anchor's projection with a random offset of at most :data:`WINDOW_JITTER`
+    of its size and kept inside its photo, so the views overlap as crops around one place of a scene do:
+    where the windows were placed with a quarter of their size of offset around an anchor that some photos
+    did not see, a reference pixel was inside a source window for half of the pixels only (0.50 against
+    0.79 for whole small photos).
     """
     wf, hf = sensor
     w, h = scene.width, scene.height
     if (wf, hf) == (w, h):
         return
     K = scene.cameras[0].K.copy()
-    first = scene.cameras[int(rng.integers(len(scene.cameras)))]
-    px = np.clip(rng.normal(0.5, 0.22, (32, 2)), 0.05, 0.95) * (wf, hf)
-    dirs = np.concatenate([px, np.ones((32, 1))], 1) @ np.linalg.inv(K).T @ first.R
-    t, _, _ = cast(scene, first.center, dirs)
-    hit = np.flatnonzero(np.isfinite(t))
-    if len(hit):
-        points = first.center + t[hit, None] * dirs[hit]
-        anchor = points[int(np.argmax(_photos_seeing(scene, K, points, wf, hf)))]  # argmax: the first best
-    else:
-        anchor = first.center + np.linalg.norm(first.center) * dirs[0]
+    n = len(scene.cameras)
+    start = int(rng.integers(n))
+    anchor = None
+    for k in range(n):  # a photo whose rays all miss (sky only) hands over to the next photo
+        first = scene.cameras[(start + k) % n]
+        px = np.clip(rng.normal(0.5, 0.22, (32, 2)), 0.05, 0.95) * (wf, hf)
+        dirs = np.concatenate([px, np.ones((32, 1))], 1) @ np.linalg.inv(K).T @ first.R
+        t, _, _ = cast(scene, first.center, dirs)
+        hit = np.flatnonzero(np.isfinite(t))
+        if len(hit):
+            points = first.center + t[hit, None] * dirs[hit]
+            anchor = points[int(np.argmax(_photos_seeing(scene, K, points, wf, hf)))]  # argmax: the first best
+            break
+    if anchor is None:  # nothing anywhere: the windows stay in the photos' middles
+        anchor = scene.cameras[start].center + scene.cameras[start].R[2]
     for cam in scene.cameras:
         p = K @ (cam.R @ anchor + cam.t)
         u, v = (p[:2] / p[2]) if p[2] > 0 else (wf / 2, hf / 2)
@@ -362,8 +368,8 @@ def _facade(rng, n_views, K, n_objects, extra):
     yaw = np.deg2rad(rng.uniform(-25, 25))
     look = np.array([-np.cos(yaw), np.sin(yaw), rng.uniform(0.0, 0.25)]) * dist
     start = np.array([dist, rng.uniform(-width / 4, width / 4), rng.uniform(1.5, 3.0)])
-    if extra.random() < 0.4:
-        look[2] += extra.uniform(0.2, 0.6) * dist  # looking up at the upper floors and the sky
+    if extra.random() < 0.4:  # looking up at the upper floors and the sky, the roof line still in view
+        look[2] = max(look[2], min(look[2] + extra.uniform(0.2, 0.6) * dist, 0.85 * height - 3.0))
     mix = rng.uniform(0, 0.5)
     direction = np.array([-mix, (1 - mix) * rng.choice([-1, 1]), 0.0])
     centers, targets = _walk(rng, n_views, start, direction, rng.uniform(0.2, 0.9), look, 0.03)
