@@ -183,9 +183,11 @@ def test_blended_finetune_takes_a_dtu_list_for_part_of_dtu(tmp_path):
 
 def test_a_synthetic_reference_that_sees_nothing_hands_over_to_the_next_camera():
     """One camera of a random scene may see only sky: its samples take the scene's next camera as the
-    reference instead of stopping a long run (a scene no camera sees anything of: the next scene); a source
-    whose scenes never show anything is an error."""
+    reference instead of stopping a long run (a scene no camera sees anything of: the next scene), and so does
+    one that sees next to nothing; a source whose scenes never show anything is an error."""
     from mvsformerpp.data import SyntheticDataset
+    from mvsformerpp.data.synthetic import MIN_SEEN
+    from mvsformerpp.synth import render_view
     from mvsformerpp.synth.render import Camera, Surface, SynthScene, look_at
     from mvsformerpp.synth.shapes import Sphere
 
@@ -207,7 +209,20 @@ def test_a_synthetic_reference_that_sees_nothing_hands_over_to_the_next_camera()
     np.testing.assert_array_equal(handed.views[0].depth, normal.views[0].depth)
     np.testing.assert_array_equal(handed.views[0].E, normal.views[0].E)
 
+    def one_far(seed, num_views, height, width):
+        """Camera 1 sees the ball from so far that it covers a few pixels: next to nothing to crop or learn."""
+        scene = one_blind(seed, num_views, height, width, blind=())
+        c = 30 * np.array([np.cos(0.3), np.sin(0.3), 0.2])
+        scene.cameras[1] = Camera(scene.cameras[1].K, *look_at(c, np.zeros(3)))
+        return scene
+
+    far = SyntheticDataset(1, num_views=3, views_per_scene=4, source=one_far)
+    seen = far.load_views(1, np.random.default_rng(0), 24, 32).views[0]
+    assert 0 < (render_view(one_far(1, 4, 24, 32), one_far(1, 4, 24, 32).cameras[1])[1] > 0).mean() < MIN_SEEN
+    assert (seen.depth > 0).mean() >= MIN_SEEN
+    np.testing.assert_array_equal(seen.E, far.load_views(2, np.random.default_rng(0), 24, 32).views[0].E)
+
     blind = SyntheticDataset(1, num_views=3, views_per_scene=3,
                              source=lambda **kw: one_blind(**kw, blind=range(kw["num_views"])))
-    with pytest.raises(InputError, match="and the 7 scenes after it: no camera sees anything"):
+    with pytest.raises(InputError, match="and the 7 scenes after it: no camera sees enough"):
         blind.load_views(0, np.random.default_rng(0), 24, 32)

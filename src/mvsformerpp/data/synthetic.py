@@ -24,9 +24,12 @@ from mvsformerpp.errors import InputError
 
 DEFAULT_SOURCE = "mvsformerpp.synth:random_scene"
 SOURCE_ARGS = ("seed", "num_views", "height", "width")
+"""The keywords every scene source is called with."""
 EMPTY_SCENE_TRIES = 8
 """Scenes (this one and the next seeds) a sample tries before it gives up on a source that sees nothing."""
-"""The keywords every scene source is called with."""
+MIN_SEEN = 0.05
+"""Share of its pixels with depth a camera needs to be a sample's reference: less (a window of sky with a
+pole in a corner) gives the crop nothing to find and the loss next to nothing to learn from."""
 
 
 def resolve_source(spec: str | Callable) -> Callable:
@@ -103,9 +106,9 @@ class SyntheticDataset(MVSDataset):
 
         scene_idx, ref = divmod(index, self.views_per_scene)
         h, w = round(height * self.render_scale), round(width * self.render_scale)
-        # A random scene may have a view that sees nothing (a window of sky): the next camera of the scene
-        # is the reference then, and the next scene where no camera sees anything, so that one odd sample
-        # does not end a run of hours.
+        # A random scene may have a view that sees nothing or next to nothing (a window of sky): the next
+        # camera of the scene is the reference then, and the next scene where no camera sees enough, so that
+        # one odd sample does not end a run of hours (nor its resumption, which meets the same sample).
         for offset in range(EMPTY_SCENE_TRIES):
             scene = self.source(seed=self.scene_seed + scene_idx + offset, num_views=self.views_per_scene,
                                 height=h, width=w, **self.options)
@@ -113,15 +116,16 @@ class SyntheticDataset(MVSDataset):
             sighted = None
             for a in range(n):
                 first = render_view(scene, scene.cameras[(ref + a) % n])
-                if first[1].any():
+                if (first[1] > 0).mean() >= MIN_SEEN:
                     sighted = (ref + a) % n
                     break
             if sighted is not None:
                 ref = sighted
                 break
         else:
+            name = getattr(self.source, "__name__", self.source)
             raise InputError(f"{self.describe(index)} and the {EMPTY_SCENE_TRIES - 1} scenes after it: no camera "
-                             f"sees anything (the scene source {getattr(self.source, '__name__', self.source)!r} "
+                             f"sees enough (depth on at least {MIN_SEEN:.0%} of its pixels; the scene source {name!r} "
                              "makes empty scenes)")
         centers = np.stack([c.center for c in scene.cameras])
         cands = neighbour_order(centers, ref)[: self.num_candidates]
