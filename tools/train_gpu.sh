@@ -1,12 +1,14 @@
 #!/usr/bin/env bash
-# Continue the default weights on a GPU machine: the phase-3 recipe (windows of high-resolution photos)
-# from the shipped weights, with a GPU-sized batch, bf16 and many data workers, then the new weights as
+# Continue the default weights on a GPU machine: the phase-4 recipe (windows of high-resolution photos at
+# crops of up to 320x384) from the shipped weights, with a GPU-sized batch, bf16 and many data workers,
+# then the new weights as
 # fp16 (the shipped format, about 15 MiB) with the run's config and metrics. Needs only torch with CUDA,
 # safetensors, scipy, scikit-image, pyyaml, pillow and tqdm: no install step, run from a checkout.
 #   tools/train_gpu.sh OUT_DIR [STEPS] [SECONDS]   # defaults: 1200 steps, stop after 540 s in any case
 #   tools/train_gpu.sh --dry-run OUT_DIR            # the same script on the CPU: 4 steps at 64x96
-# GUIDE=P sets window_guide (default 0.5: half the samples search their fine stages around the true depth,
-# the next experiment of docs/model-card.md; GUIDE=0 is phase 3's recipe as it is).
+# RECIPE=FILE trains another recipe (default configs/default-lite-synthetic-stage5.yaml). GUIDE=P sets
+# window_guide (default 0, the recipe as it is; 0.5 lets half the samples search their fine stages around
+# the true depth, the guided windows of docs/model-card.md).
 # Then, on any machine: python bench/eval_default_model.py --checkpoint OUT_DIR/weights/*.safetensors
 # --calibrate --json quality.json; python tools/ship_default_weights.py ... (docs/model-card.md).
 set -euo pipefail
@@ -25,18 +27,19 @@ if [[ $DRY == 1 ]]; then
           --set num_workers=1 --set val_samples=2 --set val_every=4 --set parallax_samples=8)
 else
     WORKERS=$(( $(nproc) > 2 ? $(nproc) - 2 : 1 ))
-    ARGS=(--device cuda --precision bf16 --max-steps "$STEPS" --batch-size 16 --set lr=0.001
+    ARGS=(--device cuda --precision bf16 --max-steps "$STEPS" --batch-size 16
           --set "num_workers=$WORKERS" --set val_every=200 --set save_every=100)
 fi
-ARGS+=(--set "window_guide=${GUIDE:-0.5}")
+ARGS+=(--set "window_guide=${GUIDE:-0}")
+RECIPE="${RECIPE:-configs/default-lite-synthetic-stage5.yaml}"
 RESUME=()
 if [[ -f "$RUN/checkpoints/last.state.pt" ]]; then RESUME=(--resume); fi
 "$PY" -c "import torch; print('torch', torch.__version__, '|', torch.cuda.get_device_name() if torch.cuda.is_available() else 'no GPU')"
 # The run saves every save_every steps; a stop by the time limit keeps the last saved checkpoint.
-timeout --signal=INT "$SECONDS_LEFT" "$PY" -m mvsformerpp train configs/default-lite-synthetic-stage3.yaml -o "$RUN" \
+timeout --signal=INT "$SECONDS_LEFT" "$PY" -m mvsformerpp train "$RECIPE" -o "$RUN" \
     --checkpoint src/mvsformerpp/assets/weights/mvsformerpp-lite-synthetic.safetensors "${RESUME[@]}" "${ARGS[@]}" \
     || echo "training stopped (time limit or error, exit $?): exporting the last checkpoint"
-"$PY" - "$RUN" "$OUT/weights" <<'PYEOF'
+"$PY" - "$RUN" "$OUT/weights" "$(basename "$RECIPE" .yaml)" <<'PYEOF'
 import json, sys
 from pathlib import Path
 from mvsformerpp.models.checkpoint import load_model
@@ -48,7 +51,7 @@ if not last.is_file():
 rows = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if x.strip()]
 steps = max((r["step"] for r in rows if "loss" in r), default=0)
 path = write_shipped(load_model(last), "lite", out, "mvsformerpp-lite-synthetic.safetensors",
-                     {"summary": f"phase 3 on a GPU, {steps} steps", "steps": str(steps)})
+                     {"summary": f"{sys.argv[3]} on a GPU, {steps} steps", "steps": str(steps)})
 print(f"exported {path} ({path.stat().st_size / 2**20:.1f} MiB) after {steps} steps")
 PYEOF
 cp "$RUN/metrics.jsonl" "$RUN/config.yaml" "$OUT/"
