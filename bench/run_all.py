@@ -10,6 +10,7 @@ RUNS = [
     ["bench_fusion.py", "--scale", "0.25"],
     ["bench_eval.py"],
     ["bench_cache.py"],
+    ["bench_precision.py"],
 ]
 
 for args in RUNS:
