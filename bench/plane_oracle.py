@@ -10,7 +10,7 @@ blurred and subsampled to the stage's resolution, are warped onto every plane
 5x5 normalised cross-correlation with the reference, averaged over the source views that see the pixel on
 every plane, is the oracle's pick. Printed per stage: the share of pixels where it picks the true plane
 (chance 1/32, 1/16, 1/8, 1/4) and the share within one plane. Rows: training recipes' views as training
-feeds them (default: phases 2, 3 and 5) and, with ``--dtu``, the real DTU pair at 640x512 (its 160x128
+feeds them (default: the recipes of phases 2, 3 and 4) and, with ``--dtu``, the real DTU pair at 640x512 (its 160x128
 ground truth bilinearly upsampled where all four neighbours are valid).
 
 A stage whose views leave even this matcher near chance has nothing to learn from them (phase 2's whole
