@@ -148,7 +148,8 @@ def main() -> None:
     import torch
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    p.add_argument("recipes", nargs="*", help="training recipes or YAML configs (default: phases 2, 3 and 5)")
+    p.add_argument("recipes", nargs="*",
+                   help="training recipes or YAML configs (default: the recipes of phases 2, 3 and 4)")
     p.add_argument("--samples", type=int, default=48, help="training samples per recipe (default 48)")
     p.add_argument("--dtu", action="store_true", help="add the real DTU pair at 640x512")
     args = p.parse_args()
