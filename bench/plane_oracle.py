@@ -119,28 +119,17 @@ def recipe_counts(recipe: str, samples: int, generator) -> np.ndarray:
 def dtu_counts(draws: int, generator) -> np.ndarray:
     import torch
     import torch.nn.functional as F
+    from stage_losses import dtu_pair_inputs  # bench/ is on the path when a bench script runs
 
-    from mvsformerpp.io.images import read_image
-    from mvsformerpp.io.mvsnet import read_cam
-    from mvsformerpp.io.pfm import read_pfm
-
-    pair = ROOT / "tests" / "data" / "dtu_pair"
-    cams = [read_cam(pair / f"{i:08d}_cam.txt") for i in (0, 1)]
-    imgs = [torch.from_numpy(read_image(pair / f"rect_{i + 1:03d}_0_r5000.png").astype(np.float32) / 255)
-            .permute(2, 0, 1) for i in (0, 1)]
     total = np.zeros((4, 3))
-    for ref in (0, 1):
-        order = (ref, 1 - ref)
-        gt = torch.from_numpy(read_pfm(pair / f"depth_map_{ref:04d}.pfm").astype(np.float32))
-        H, W = imgs[0].shape[1:]
+    for images, Ks, Es, depth_min, depth_max, gt in dtu_pair_inputs():
+        gt = torch.from_numpy(gt.astype(np.float32))
+        H, W = images.shape[-2:]
         up = F.interpolate(gt[None, None], (H, W), mode="bilinear", align_corners=False)[0, 0]
         full = F.interpolate((gt > 0).float()[None, None], (H, W), mode="bilinear", align_corners=False)[0, 0]
         depth = torch.where(full > 0.999, up, torch.zeros_like(up))
-        Ks = np.stack([np.diag([4.0, 4.0, 1.0]) @ cams[i].K for i in order])  # the cams' K is for 160x128
         for _ in range(draws):
-            total += oracle_counts(torch.stack([imgs[i] for i in order]), Ks,
-                                   np.stack([cams[i].extrinsic for i in order]), depth, cams[ref].depth_min,
-                                   cams[ref].depth_max, generator)
+            total += oracle_counts(images, Ks, Es, depth, depth_min, depth_max, generator)
     return total
 
 

@@ -126,31 +126,42 @@ def _stage_counts(out, depth_gt, masks):
     return counts
 
 
-def dtu_stage_scores(model):
-    """(abs_rel of the final depth, per-stage share within one plane, per-stage share with the truth in the
-    window) on the DTU pair at 640x512, each view the reference once (the other its source)."""
+def dtu_pair_inputs():
+    """The DTU pair (tests/data/dtu_pair) as the network takes it at 640x512, once per reference view: yields
+    (images [2, 3, H, W] in [0, 1], Ks [2, 3, 3], extrinsics [2, 4, 4], depth_min, depth_max, the reference's
+    160x128 ground-truth depth), the reference first."""
     import numpy as np
     import torch
 
     from mvsformerpp.io.images import read_image
     from mvsformerpp.io.mvsnet import read_cam
     from mvsformerpp.io.pfm import read_pfm
-    from mvsformerpp.models.inputs import normalize, stage_projections
 
     pair = ROOT / "tests" / "data" / "dtu_pair"
     cams = [read_cam(pair / f"{i:08d}_cam.txt") for i in (0, 1)]
     images = [torch.from_numpy(read_image(pair / f"rect_{i + 1:03d}_0_r5000.png").astype(np.float32) / 255)
               .permute(2, 0, 1) for i in (0, 1)]
-    counts, rel = np.zeros((3, 4)), []
-    model.prepare_for_inference()
     for ref in (0, 1):
         order = (ref, 1 - ref)
         Ks = np.stack([np.diag([4.0, 4.0, 1.0]) @ cams[i].K for i in order])  # the cams' K is for 160x128
-        projs = stage_projections(np.stack([cams[i].extrinsic for i in order]), Ks)
-        depth_values = torch.tensor([[cams[ref].depth_min, cams[ref].depth_max]], dtype=torch.float32)
+        yield (torch.stack([images[i] for i in order]), Ks, np.stack([cams[i].extrinsic for i in order]),
+               cams[ref].depth_min, cams[ref].depth_max, read_pfm(pair / f"depth_map_{ref:04d}.pfm"))
+
+
+def dtu_stage_scores(model):
+    """(abs_rel of the final depth, per-stage share within one plane, per-stage share with the truth in the
+    window) on the DTU pair at 640x512, each view the reference once (the other its source)."""
+    import numpy as np
+    import torch
+
+    from mvsformerpp.models.inputs import normalize, stage_projections
+
+    counts, rel = np.zeros((3, 4)), []
+    model.prepare_for_inference()
+    for images, Ks, Es, depth_min, depth_max, gt in dtu_pair_inputs():
+        depth_values = torch.tensor([[depth_min, depth_max]], dtype=torch.float32)
         with torch.no_grad():
-            out = model(normalize(torch.stack([images[i] for i in order]))[None], projs, depth_values)
-        gt = read_pfm(pair / f"depth_map_{ref:04d}.pfm")
+            out = model(normalize(images)[None], stage_projections(Es, Ks), depth_values)
         depth_gt = {}
         for s in range(4):
             h = out[f"stage{s + 1}"]["depth"].shape[-2]

@@ -75,7 +75,7 @@ def _box(rng, center, half, yaw, **kw) -> Surface:
                      frame=_yaw(yaw), **kw)
 
 
-def _thin_structures(extra: np.ndarray | np.random.Generator, count: int, xy_low, xy_high, radius, height,
+def _thin_structures(extra: np.random.Generator, count: int, xy_low, xy_high, radius, height,
                      base: float = 0.0) -> list[Surface]:
     """``count`` upright thin cylinders (rods, stands, poles) at random (x, y) in the box [xy_low, xy_high]:
     the structures a few pixels wide whose both sides are occlusion boundaries in real photos."""
