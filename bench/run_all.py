@@ -11,6 +11,7 @@ RUNS = [
     ["bench_eval.py"],
     ["bench_cache.py"],
     ["bench_precision.py"],
+    ["bench_lite.py", "--rounds", "1"],
 ]
 
 for args in RUNS:

@@ -143,3 +143,60 @@ def test_warp_is_the_same_with_and_without_autograd_and_in_hypothesis_chunks():
     chunks = torch.cat([homography_warp(feat, src_proj, ref_proj, depth.detach()[:, d:d + 2], rays)
                         for d in range(0, 6, 2)], 2)
     assert torch.equal(with_grad.detach(), plain) and torch.equal(plain, chunks)
+
+
+def test_warp_in_blocks_of_hypotheses_gives_the_same_values():
+    """blocks > 1 samples one image's hypotheses as a batch of blocks (so that PyTorch's CPU grid_sample,
+    parallel over the batch only, uses every thread): block k holds hypotheses k*D/blocks onwards with the
+    values of one call, bit for bit; it refuses batches, autograd and a hypothesis count it cannot split."""
+    torch.manual_seed(1)
+    K = torch.tensor([[60.0, 0, 40], [0, 60, 30], [0, 0, 1]])
+    E_src = torch.eye(4)
+    E_src[0, 3] = 2.5
+    ref_proj, src_proj = projection_4x4(torch.eye(4)[None], K[None]), projection_4x4(E_src[None], K[None])
+    feat = torch.randn(1, 6, 60, 80).contiguous(memory_format=torch.channels_last)  # as the network's features
+    depth = torch.rand(1, 8, 60, 80) * 20 + 30
+    whole = homography_warp(feat, src_proj, ref_proj, depth)
+    for blocks in (2, 4, 8):
+        parts = homography_warp(feat, src_proj, ref_proj, depth, blocks=blocks)
+        assert parts.shape == (blocks, 6, 8 // blocks, 60, 80)
+        assert torch.equal(torch.cat(list(parts), 1)[None], whole)
+    with pytest.raises(ValueError, match="multiple of 3"):
+        homography_warp(feat, src_proj, ref_proj, depth, blocks=3)
+    with pytest.raises(ValueError, match="one image"):
+        homography_warp(feat.expand(2, -1, -1, -1), src_proj.expand(2, -1, -1), ref_proj.expand(2, -1, -1),
+                        depth.expand(2, -1, -1, -1), blocks=2)
+    with pytest.raises(ValueError, match="without autograd"):
+        homography_warp(feat, src_proj, ref_proj, depth.requires_grad_(), blocks=2)
+
+
+def test_the_lean_cost_volume_is_the_same_on_any_number_of_threads():
+    """The inference cost volume warps in blocks of hypotheses, one per thread: the volume is the same
+    on 1-4 threads (up to the rounding of the visibility net's threaded convolutions) and equals the one
+    built with autograd on (no blocks, no in-place buffers)."""
+    from mvsformerpp.models import prepared
+    from mvsformerpp.models.cost_volume import StageNet
+
+    torch.manual_seed(2)
+    stage = StageNet(8, groups=4).eval()
+    K = torch.tensor([[50.0, 0, 32], [0, 50, 24], [0, 0, 1]])
+    proj = torch.zeros(1, 3, 2, 4, 4)
+    proj[:, :, 0] = torch.eye(4)
+    proj[0, 1, 0, 0, 3], proj[0, 2, 0, 1, 3] = 1.5, -1.0
+    proj[:, :, 1, :3, :3], proj[:, :, 1, 3, 3] = K, 1.0
+    feats = torch.randn(1, 3, 8, 48, 64)
+    hyp = torch.linspace(20.0, 40.0, 8).view(1, 8, 1, 1).expand(1, 8, 48, 64).contiguous()
+    with torch.enable_grad():
+        reference = stage.cost_volume(feats, proj, hyp.requires_grad_()).detach()
+    threads = torch.get_num_threads()
+    volumes = []
+    try:
+        for n in (1, 2, 3, 4):
+            torch.set_num_threads(n)
+            with torch.no_grad(), prepared.session(stage):
+                assert prepared.lean()
+                volumes.append(stage.cost_volume(feats, proj, hyp.detach()))
+    finally:
+        torch.set_num_threads(threads)
+    for v in volumes:
+        torch.testing.assert_close(v, reference, rtol=1e-5, atol=1e-6)

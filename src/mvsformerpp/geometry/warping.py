@@ -39,6 +39,7 @@ def homography_warp(
     ref_proj: torch.Tensor,
     depth_hypotheses: torch.Tensor,
     rays: tuple[torch.Tensor, torch.Tensor] | None = None,
+    blocks: int = 1,
 ) -> torch.Tensor:
     """Sample source features at the projections of reference pixels lifted to each hypothesis depth.
 
@@ -48,8 +49,14 @@ def homography_warp(
             feature map's scale).
         depth_hypotheses: [B, D, H, W] z-depths in the reference camera, per reference pixel.
         rays: :func:`warp_rays` of these projections, when the caller warps in hypothesis chunks.
+        blocks: for one image (B = 1) without autograd, split the D hypotheses into this many blocks
+            of consecutive hypotheses, sampled as one batch: PyTorch's CPU ``grid_sample`` runs the
+            images of a batch in parallel but one image on one thread, so with ``blocks`` = the number
+            of threads the warp uses them all. D must be a multiple of ``blocks``; the source image is
+            broadcast, not copied, and the values are those of ``blocks=1``.
     Returns:
-        [B, C, D, H, W] warped source features; zeros where the projection leaves the image.
+        [B, C, D, H, W] warped source features, zeros where the projection leaves the image; with
+        ``blocks`` > 1: [blocks, C, D / blocks, H, W], block k holding hypotheses k*D/blocks onwards.
     Computed in float32 whatever the caller's autocast (the reference disables autocast here).
     """
     B, C, H, W = src_feat.shape
@@ -66,6 +73,13 @@ def homography_warp(
             grid = torch.stack((gx, gy), dim=3).reshape(B, D * H, W, 2)
         else:  # the same numbers with fewer passes over the [B, D, H*W] grid
             grid = _sampling_grid(rot_xyz, trans, depth[:, 0], H, W)
+        if blocks > 1:
+            if B != 1 or D % blocks or grid.requires_grad or src_feat.requires_grad:
+                raise ValueError(f"blocks={blocks} needs one image without autograd and a multiple of {blocks} "
+                                 f"hypotheses (got B={B}, D={D})")
+            warped = F.grid_sample(src_feat.expand(blocks, -1, -1, -1), grid.view(blocks, D * H // blocks, W, 2),
+                                   mode="bilinear", padding_mode="zeros", align_corners=True)
+            return warped.view(blocks, C, D // blocks, H, W)
         warped = F.grid_sample(src_feat, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
     return warped.reshape(B, C, D, H, W)
 

@@ -99,6 +99,10 @@ class StageNet(nn.Module):
             # Hypotheses in chunks bound the warped-feature memory (full resolution: ~0.25 GB per view).
             step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
             inplace = prepared.lean()  # eval without autograd: reuse buffers
+            blocks = 1
+            if inplace and B == 1:  # one image: its warp in blocks of hypotheses, one per thread
+                blocks = max(k for k in range(1, min(torch.get_num_threads(), D) + 1) if D % k == 0)
+                step = max(step // blocks, 1) * blocks
             vis_forms = prepared.forms(self)
             volume_sum, vis_sum, spare = None, 0.0, None
             for v in range(1, features.shape[1]):
@@ -107,10 +111,18 @@ class StageNet(nn.Module):
                 rays = warp_rays(src_proj, ref_proj, H, W)
                 corr = spare if spare is not None else ref.new_empty(B, self.groups, D, H, W)
                 for d in range(0, D, step):
-                    warped = homography_warp(src, src_proj, ref_proj, hypotheses[:, d:d + step], rays)
-                    if inplace:
+                    chunk = hypotheses[:, d:d + step]
+                    if inplace and blocks > 1 and chunk.shape[1] % blocks == 0:  # B = 1: block k is [1, ...]
+                        warped = homography_warp(src, src_proj, ref_proj, chunk, rays, blocks=blocks)
+                        n = chunk.shape[1] // blocks
+                        for k in range(blocks):
+                            group_correlation(ref, warped[k:k + 1], self.groups,
+                                              out=corr[:, :, d + k * n:d + (k + 1) * n])
+                    elif inplace:
+                        warped = homography_warp(src, src_proj, ref_proj, chunk, rays)
                         group_correlation(ref, warped, self.groups, out=corr[:, :, d:d + step])
                     else:
+                        warped = homography_warp(src, src_proj, ref_proj, chunk, rays)
                         corr[:, :, d:d + step] = group_correlation(ref, warped, self.groups)
                     del warped
                 weight = visibility(self.vis, matching_entropy(corr), vis_forms)  # [B,1,H,W]

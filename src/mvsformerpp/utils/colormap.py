@@ -101,8 +101,11 @@ def confidence_to_png(path: str | Path, confidence: np.ndarray) -> None:
 
 
 def save_png(path: str | Path, rgb: np.ndarray) -> None:
-    """Write RGB uint8 ``[H, W, 3]`` as PNG, atomically."""
+    """Write RGB uint8 ``[H, W, 3]`` as PNG, atomically. zlib level 1: previews are written once per view
+    while the network runs, and level 1 encodes them 3-4 times faster than the default 6 for files about
+    a fifth larger."""
     from PIL import Image
 
     with atomic_open(path, "wb") as f:
-        Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8), mode="RGB").save(f, format="PNG")
+        Image.fromarray(np.ascontiguousarray(rgb, dtype=np.uint8), mode="RGB").save(f, format="PNG",
+                                                                                     compress_level=1)
