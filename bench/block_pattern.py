@@ -1,0 +1,178 @@
+"""Where the block pattern of the depth maps comes from: the measures of the model card's "Block pattern".
+
+On a synthetic scene with exact depth (5 photos, every view the reference once, shipped weights unless
+``--checkpoint``), it prints the median over the views of:
+
+* features: the squared step between neighbouring pixels of the features each stage matches (FPN
+  decoder output, then after the FMT pathway) across stage-1 cell borders, over the same elsewhere;
+* stages: each stage's depth brought to full resolution (bilinear in inverse depth, as the cascade
+  centres its windows) and its 8-pixel grid ratio (:func:`~mvsformerpp.evaluation.depth.grid_artifact_ratio`),
+  beside the truth's;
+* the final depth's grid ratio on 8- and 32-pixel grids (32: the stage-1 transformer's 4x4-cell token
+  patches), all steps and with the largest 1 % clipped;
+* per stage at its own resolution, the mean squared relative step by pixel index modulo 8.
+
+``--shift`` averages the stage-1 transformer's logits over the volume as is and shifted by half a token
+patch (an inference experiment, not a package option).
+
+    PYTHONPATH=src python bench/block_pattern.py [--size 480 640] [--seed 5000000] [--shift] [--checkpoint PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import contextlib
+import tempfile
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+
+from mvsformerpp.evaluation.depth import grid_artifact_ratio
+
+
+def squared_steps(d: np.ndarray, valid: np.ndarray, axis: int):
+    """Squared relative depth steps between neighbours along ``axis`` and which pairs are valid."""
+    a, b = (d[1:], d[:-1]) if axis == 0 else (d[:, 1:], d[:, :-1])
+    pair = (valid[1:] & valid[:-1]) if axis == 0 else (valid[:, 1:] & valid[:, :-1])
+    return ((a - b) / (0.5 * (a + b))) ** 2, pair
+
+
+def clipped_grid_ratio(d: np.ndarray, valid: np.ndarray, cell: int, clip: float) -> float:
+    """grid_artifact_ratio with the steps above the ``clip`` percentile set to it."""
+    on, off = [], []
+    for axis in (0, 1):
+        rel, pair = squared_steps(d, valid, axis)
+        line = np.arange(1, d.shape[axis]) % cell == 0
+        line = np.broadcast_to(line[:, None] if axis == 0 else line[None, :], rel.shape)
+        on.append(rel[pair & line])
+        off.append(rel[pair & ~line])
+    on, off = np.concatenate(on), np.concatenate(off)
+    cap = np.percentile(np.concatenate([on, off]), clip)
+    return float(np.minimum(on, cap).mean() / np.minimum(off, cap).mean())
+
+
+def modulo_profile(d: np.ndarray, period: int = 8) -> np.ndarray:
+    """Mean squared relative step (largest 1 % clipped) by pixel index modulo ``period``, over the mean."""
+    e, n = np.zeros(period), np.zeros(period)
+    for axis in (0, 1):
+        rel, _ = squared_steps(d, np.ones_like(d, bool), axis)
+        rel = np.minimum(rel, np.percentile(rel, 99))
+        idx = np.arange(1, d.shape[axis]) % period
+        for k in range(period):
+            sel = rel[idx == k] if axis == 0 else rel[:, idx == k]
+            e[k] += sel.sum()
+            n[k] += sel.size
+    return e / n / (e.sum() / n.sum())
+
+
+def border_ratio(f: torch.Tensor, cell: int) -> float:
+    """Squared feature step across ``cell``-pixel grid lines over the same elsewhere, f [C, h, w]."""
+    on, off = [], []
+    for axis in (1, 2):
+        step = (f.double().diff(dim=axis) ** 2).sum(0)
+        line = torch.arange(1, f.shape[axis]) % cell == 0
+        line = (line[:, None] if axis == 1 else line[None, :]).expand_as(step)
+        on.append(step[line])
+        off.append(step[~line])
+    return float(torch.cat(on).mean() / torch.cat(off).mean())
+
+
+def to_full(depth: torch.Tensor, H: int, W: int) -> np.ndarray:
+    inv = 1.0 / depth.clamp(min=1e-6)
+    return (1.0 / F.interpolate(inv[None, None], (H, W), mode="bilinear", align_corners=True))[0, 0].double().numpy()
+
+
+@contextlib.contextmanager
+def half_patch_shift():
+    """Average the stage-1 transformer's logits with those of the volume shifted by half a token patch."""
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    plain = CostVolumeTransformer.forward
+
+    def forward(self, volume, coords=None):
+        sy, sx = self.down[0].stride[1] // 2, self.down[0].stride[2] // 2
+        pad = (sx, sx, sy, sy)
+        shifted = plain(self, F.pad(volume, pad),
+                        None if coords is None else F.pad(coords, pad + (0, 0), mode="replicate"))
+        H, W = volume.shape[-2:]
+        return (plain(self, volume, coords) + shifted[..., sy:sy + H, sx:sx + W]) / 2
+
+    CostVolumeTransformer.forward = forward
+    try:
+        yield
+    finally:
+        CostVolumeTransformer.forward = plain
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--size", type=int, nargs=2, default=(480, 640), metavar=("H", "W"))
+    ap.add_argument("--seed", type=int, default=5_000_000)
+    ap.add_argument("--checkpoint", help="weights to measure (default: the shipped ones)")
+    ap.add_argument("--shift", action="store_true", help="the half-patch shift experiment at stage 1")
+    a = ap.parse_args()
+    import mvsformerpp.models.mvsformer as network
+    from mvsformerpp.io.images import read_image
+    from mvsformerpp.io.mvsnet import read_cam
+    from mvsformerpp.io.pfm import read_pfm
+    from mvsformerpp.models.checkpoint import load_model
+    from mvsformerpp.models.inputs import normalize, stage_projections
+    from mvsformerpp.models.shipped import load_shipped
+    from mvsformerpp.synth import generate_scene
+
+    model = (load_model(a.checkpoint) if a.checkpoint else load_shipped()).prepare_for_inference()
+    captured = {}
+    decode = network.decode_views
+
+    def spy_decode(*args, **kwargs):
+        out = decode(*args, **kwargs)
+        captured["FPN decoder"] = [f[0, 0].clone() for f in out]
+        return out
+
+    fmt = model.FMT_module.forward
+
+    def spy_fmt(features):
+        out = fmt(features)
+        captured["after FMT"] = [f[0, 0].clone() for f in out]
+        return out
+
+    network.decode_views, model.FMT_module.forward = spy_decode, spy_fmt
+    rows = []
+    with tempfile.TemporaryDirectory() as tmp, half_patch_shift() if a.shift else contextlib.nullcontext():
+        scene = generate_scene(tmp, seed=a.seed, num_views=5, height=a.size[0], width=a.size[1])
+        cams = [read_cam(scene / "cams" / f"{i:08d}_cam.txt") for i in range(5)]
+        imgs = [torch.from_numpy(read_image(scene / "images" / f"{i:08d}.png").astype(np.float32) / 255)
+                .permute(2, 0, 1) for i in range(5)]
+        for ref in range(5):
+            order = [ref] + [i for i in range(5) if i != ref]
+            proj = stage_projections(np.stack([cams[i].extrinsic for i in order]), np.stack([cams[i].K for i in order]))
+            dv = torch.tensor([[cams[ref].depth_min, cams[ref].depth_max]], dtype=torch.float32)
+            with torch.no_grad():
+                out = model(normalize(torch.stack([imgs[i] for i in order]))[None], proj, dv)
+            gt = read_pfm(scene / "depth_gt" / f"{ref:08d}.pfm").astype(np.float64)
+            valid, (H, W) = gt > 0, gt.shape
+            final = out["depth"][0].double().numpy()
+            r = {f"features, {k}, stage {s + 1}": border_ratio(f[s], 2 ** s)
+                 for k, f in captured.items() for s in range(1, 4)}
+            r |= {f"stage {s} at full resolution, 8-px grid": grid_artifact_ratio(
+                to_full(out[f"stage{s}"]["depth"][0], H, W), 8, valid) for s in range(1, 5)}
+            r["truth, 8-px grid"] = grid_artifact_ratio(gt, 8, valid)
+            for cell in (8, 32):
+                r[f"final, {cell}-px grid"] = grid_artifact_ratio(final, cell, valid)
+                r[f"final, {cell}-px grid, largest 1 % clipped"] = clipped_grid_ratio(final, valid, cell, 99)
+            r["final, within 1 % of the range"] = float(np.mean(np.abs(final - gt)[valid] < 0.01 * np.ptp(gt[valid])))
+            r |= {f"stage {s} profile": modulo_profile(out[f"stage{s}"]["depth"][0].double().numpy())
+                  for s in range(1, 5)}
+            rows.append(r)
+    print(f"scene seed {a.seed}, {a.size[1]}x{a.size[0]}, 5 views{', half-patch shift at stage 1' if a.shift else ''}; "
+          "medians over the views")
+    for k in rows[0]:
+        if k.endswith("profile"):
+            print(f"  {k}: step by index mod 8 at its own resolution", np.round(np.median([r[k] for r in rows], 0), 2))
+        else:
+            print(f"  {k:48s} {np.median([r[k] for r in rows]):6.3f}")
+
+
+if __name__ == "__main__":
+    main()
