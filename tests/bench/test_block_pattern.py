@@ -26,7 +26,7 @@ def test_a_smooth_surface_has_no_pattern_and_blocks_show_on_their_grid_only():
     assert clipped_grid_ratio(blocks, ones, 32, 99) > 10
     profile = modulo_profile(blocks)  # lines every 32 px: index % 8 == 0 carries them
     assert profile.argmax() == 0 and profile[0] > 3 * np.median(profile)
-    # 8-px blocks: steps on every 8th line, and on the 32-px grid only a quarter of them
+    # 8-px blocks: steps on every 8th line
     small = smooth * (1 + 0.01 * np.kron(rng.standard_normal((12, 16)), np.ones((8, 8))))
     assert clipped_grid_ratio(small, ones, 8, 99) > 10
 

@@ -100,7 +100,8 @@ class StageNet(nn.Module):
             step = max(1, min(D, (1 << 24) // max(1, B * C * H * W)))
             inplace = prepared.lean()  # eval without autograd: reuse buffers
             blocks = 1
-            if inplace and B == 1:  # one image: its warp in blocks of hypotheses, one per thread
+            if inplace and B == 1:  # one image: its warp in blocks of hypotheses, one per thread (a chunk
+                # then holds at least `blocks` hypotheses, so at most `blocks` times the budget above)
                 blocks = max(k for k in range(1, min(torch.get_num_threads(), D) + 1) if D % k == 0)
                 step = max(step // blocks, 1) * blocks
             vis_forms = prepared.forms(self)
