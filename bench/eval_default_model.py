@@ -38,6 +38,7 @@ def main() -> None:
     from mvsformerpp.pipelines.network import describe_weights
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
     from mvsformerpp.utils.allocator import tune_allocator
+    from mvsformerpp.utils.atomic import atomic_write_text
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--checkpoint", help="lite weights to evaluate (default: the shipped weights)")
@@ -84,12 +85,14 @@ def main() -> None:
     if "dtu_pair" in results:
         r = results["dtu_pair"]
         print(f"{'dtu_pair':25s} within 4 mm {100 * r['within_4mm']:5.1f}%   within 8 mm {100 * r['within_8mm']:5.1f}%"
-              f"   within 10% of depth {100 * r['within_10pct']:5.1f}%   8-px grid ratio {r['grid_ratio']:.2f}")
+              f"   within 10% of depth {100 * r['within_10pct']:5.1f}%   grid ratio 8 px {r['grid_ratio']:.2f}, "
+              f"32 px {r['grid_ratio_32']:.2f}")
         r = results["temple"]
         print(f"{'temple':25s} {r['points']} points, {100 * r['inside_box']:.1f}% inside the box, "
-              f"{100 * r['on_silhouette']:.1f}% on the silhouettes, 8-px grid ratio {r['grid_ratio']:.2f}")
+              f"{100 * r['on_silhouette']:.1f}% on the silhouettes, grid ratio 8 px {r['grid_ratio']:.2f}, "
+              f"32 px {r['grid_ratio_32']:.2f}")
     if args.json:
-        Path(args.json).write_text(json.dumps(results, indent=2) + "\n")
+        atomic_write_text(args.json, json.dumps(results, indent=2) + "\n")
 
 
 def _pct(x) -> str:
