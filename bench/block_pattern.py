@@ -4,7 +4,8 @@ On a synthetic scene with exact depth (5 photos, every view the reference once, 
 ``--checkpoint``), it prints the median over the views of:
 
 * features: the squared step between neighbouring pixels of the features each stage matches (FPN
-  decoder output, then after the FMT pathway) across stage-1 cell borders, over the same elsewhere;
+  decoder output, then after the FMT pathway) across stage-1 cell borders (8 photo pixels) and across
+  the lines of the 32-pixel grid, over the same elsewhere;
 * stages: each stage's depth brought to full resolution (bilinear in inverse depth, as the cascade
   centres its windows) and its 8-pixel grid ratio (:func:`~mvsformerpp.evaluation.depth.grid_artifact_ratio`),
   beside the truth's;
@@ -153,8 +154,10 @@ def main() -> None:
             gt = read_pfm(scene / "depth_gt" / f"{ref:08d}.pfm").astype(np.float64)
             valid, (H, W) = gt > 0, gt.shape
             final = out["depth"][0].double().numpy()
-            r = {f"features, {k}, stage {s + 1}": border_ratio(f[s], 2 ** s)
+            r = {f"features, {k}, stage {s + 1}, cell lines": border_ratio(f[s], 2 ** s)
                  for k, f in captured.items() for s in range(1, 4)}
+            r |= {f"features, {k}, stage {s + 1}, 32-px lines": border_ratio(f[s], 4 * 2 ** s)
+                  for k, f in captured.items() for s in range(4)}
             r |= {f"stage {s} at full resolution, 8-px grid": grid_artifact_ratio(
                 to_full(out[f"stage{s}"]["depth"][0], H, W), 8, valid) for s in range(1, 5)}
             r["truth, 8-px grid"] = grid_artifact_ratio(gt, 8, valid)
