@@ -65,9 +65,10 @@ def _extras(dist, args, threshold: float, pred_pts, gt_pts) -> None:
 def _checked(command):
     """``command`` after a check that the files it will write replace nothing but their own kind (before the
     evaluation, which can take minutes)."""
-    from mvsformerpp.evaluation.visualize import PLOT_MAGICS
 
     def run(args) -> int:
+        from mvsformerpp.evaluation.visualize import PLOT_MAGICS  # scipy: not needed to build the parser
+
         if getattr(args, "json", None):
             check_replaceable(args.json, (b"{", b"["), "JSON", "--json")
         if getattr(args, "plot", None):

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 
 # The lite network at the photos' own size (640x480; about a minute on a 2-core CPU), five views per depth map,
 # dynamic fusion at the confidence threshold calibrated for the shipped weights (docs/model-card.md).
@@ -23,4 +23,6 @@ def temple_dir() -> Path:
 
 def run_demo(out_dir: str | Path, config: ReconstructConfig = DEMO_CONFIG, quiet: bool = False) -> dict:
     """Reconstruct the bundled temple into ``out_dir``; return the summary (see ``reconstruct``)."""
+    from mvsformerpp.pipelines.reconstruct import reconstruct  # needs torch; the command line's parser does not
+
     return reconstruct(temple_dir(), out_dir, config, quiet=quiet)
