@@ -17,7 +17,7 @@ def test_the_lazy_fusion_names_resolve_and_unknown_ones_fail():
     from mvsformerpp.fusion.views import make_view
 
     assert fusion.fuse_views is fuse_views and fusion.make_view is make_view
-    assert set(fusion.__all__) <= set(dir(fusion)) | set(fusion._LAZY)
+    assert set(fusion.__all__) <= set(dir(fusion))
     try:
         fusion.no_such_name  # noqa: B018
     except AttributeError as e:
