@@ -32,32 +32,17 @@ import torch.nn.functional as F
 from mvsformerpp.evaluation.depth import grid_artifact_ratio
 
 
-def squared_steps(d: np.ndarray, valid: np.ndarray, axis: int):
-    """Squared relative depth steps between neighbours along ``axis`` and which pairs are valid."""
-    a, b = (d[1:], d[:-1]) if axis == 0 else (d[:, 1:], d[:, :-1])
-    pair = (valid[1:] & valid[:-1]) if axis == 0 else (valid[:, 1:] & valid[:, :-1])
-    return ((a - b) / (0.5 * (a + b))) ** 2, pair
-
-
 def clipped_grid_ratio(d: np.ndarray, valid: np.ndarray, cell: int, clip: float) -> float:
     """grid_artifact_ratio with the steps above the ``clip`` percentile set to it."""
-    on, off = [], []
-    for axis in (0, 1):
-        rel, pair = squared_steps(d, valid, axis)
-        line = np.arange(1, d.shape[axis]) % cell == 0
-        line = np.broadcast_to(line[:, None] if axis == 0 else line[None, :], rel.shape)
-        on.append(rel[pair & line])
-        off.append(rel[pair & ~line])
-    on, off = np.concatenate(on), np.concatenate(off)
-    cap = np.percentile(np.concatenate([on, off]), clip)
-    return float(np.minimum(on, cap).mean() / np.minimum(off, cap).mean())
+    return grid_artifact_ratio(d, cell, valid, clip=clip)
 
 
 def modulo_profile(d: np.ndarray, period: int = 8) -> np.ndarray:
     """Mean squared relative step (largest 1 % clipped) by pixel index modulo ``period``, over the mean."""
     e, n = np.zeros(period), np.zeros(period)
     for axis in (0, 1):
-        rel, _ = squared_steps(d, np.ones_like(d, bool), axis)
+        a, b = (d[1:], d[:-1]) if axis == 0 else (d[:, 1:], d[:, :-1])
+        rel = ((a - b) / (0.5 * (a + b))) ** 2
         rel = np.minimum(rel, np.percentile(rel, 99))
         idx = np.arange(1, d.shape[axis]) % period
         for k in range(period):

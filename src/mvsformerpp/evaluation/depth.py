@@ -168,12 +168,15 @@ def format_depth_table(report: DepthReport) -> str:
     return "\n".join(lines)
 
 
-def grid_artifact_ratio(depth: np.ndarray, cell: int = 8, valid: np.ndarray | None = None) -> float:
+def grid_artifact_ratio(depth: np.ndarray, cell: int = 8, valid: np.ndarray | None = None,
+                        clip: float | None = None) -> float:
     """How much a depth map steps on a ``cell``-pixel grid: the mean squared relative depth difference
     between neighbouring pixels across the grid lines (x or y a multiple of ``cell``), over the same
     mean between all other neighbours. A map without a block pattern gives about 1; a map made of
     ``cell`` x ``cell`` blocks (stage-1 cells that the fine stages did not correct) gives far more.
-    The grid is counted from pixel (0, 0), where the network's cells start. NaN without valid pairs."""
+    The grid is counted from pixel (0, 0), where the network's cells start. ``clip``: cap every squared
+    step at this percentile of all of them first (99: the largest 1 % no longer dominate). NaN without
+    valid pairs."""
     depth = np.asarray(depth, dtype=np.float64)
     ok = np.isfinite(depth) & (depth > 0)
     if valid is not None:
@@ -190,6 +193,11 @@ def grid_artifact_ratio(depth: np.ndarray, cell: int = 8, valid: np.ndarray | No
         on.append(rel[pair & line])
         off.append(rel[pair & ~line])
     on, off = np.concatenate(on), np.concatenate(off)
-    if len(on) == 0 or len(off) == 0 or off.mean() == 0:
+    if len(on) == 0 or len(off) == 0:
+        return float("nan")
+    if clip is not None:
+        cap = np.percentile(np.concatenate([on, off]), clip)
+        on, off = np.minimum(on, cap), np.minimum(off, cap)
+    if off.mean() == 0:
         return float("nan")
     return float(on.mean() / off.mean())
