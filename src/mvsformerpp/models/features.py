@@ -86,9 +86,9 @@ def encode_images(vit: DinoVisionTransformer, encoder: FPNEncoder, imgs: torch.T
 
 
 def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: ImageFeatures, B: int,
-                 V: int) -> list[torch.Tensor]:
+                 V: int, levels: int = 4) -> list[torch.Tensor]:
     """SVA on the DINOv2 tokens of each sample's views, added to conv31, then the FPN decoder:
-    4 tensors [B, V, C_s, H_s, W_s] for stages 1..4 (1/8 ... 1/1). ``feats`` holds B*V images in
+    ``levels`` tensors [B, V, C_s, H_s, W_s] for stages 1..levels (1/8 ... 1/1). ``feats`` holds B*V images in
     batch-major order (view 0 of each sample is its reference). Every sample uses its own DINOv2
     features (the reference gives all samples sample 0's in eval mode)."""
     taps = [t.reshape(B, V, *t.shape[1:]) for t in feats.vit_taps]
@@ -98,8 +98,8 @@ def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: Ima
         vit_feat = F.interpolate(vit_feat, size=conv31.shape[-2:], mode="bilinear", align_corners=False)
     conv31 = conv31 + vit_feat
     if not prepared.lean():  # in training, BatchNorm batch statistics over all B*V images
-        stages = decoder(conv01, conv11, conv21, conv31)
+        stages = decoder(conv01, conv11, conv21, conv31, levels)
     else:  # eval without autograd: image by image, the same result with a much smaller working set
-        stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)
+        stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)[:levels]
     return [s.reshape(B, V, *s.shape[1:]) for s in stages]
 

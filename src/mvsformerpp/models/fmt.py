@@ -101,28 +101,32 @@ class FMTWithPathway(nn.Module):
         x = x.float().contiguous(memory_format=torch.channels_last)
         return F.interpolate(x, size=y.shape[-2:], mode="bilinear").add_(y)
 
-    def pathway(self, s1, f2, f3, f4):
-        """Carry refined stage-1 features down to the finer stages."""
-        s2 = self.smooth_1(self._upsample_add(self.dim_reduction_1(s1), f2))
-        s3 = self.smooth_2(self._upsample_add(self.dim_reduction_2(s2), f3))
-        s4 = self.smooth_3(self._upsample_add(self.dim_reduction_3(s3), f4))
-        return s2, s3, s4
+    def pathway(self, s1, *finer):
+        """Carry refined stage-1 features down to the finer stages (as many as given, coarsest first)."""
+        out, s = [], s1
+        steps = ((self.dim_reduction_1, self.smooth_1), (self.dim_reduction_2, self.smooth_2),
+                 (self.dim_reduction_3, self.smooth_3))
+        for (reduce, smooth), f in zip(steps, finer):
+            s = smooth(self._upsample_add(reduce(s), f))
+            out.append(s)
+        return out
 
     def forward(self, features: list[torch.Tensor]) -> list[torch.Tensor]:
-        """features: 4 tensors [B, V, C_s, H_s, W_s] -> the same shapes, refined.
+        """features: 4 tensors [B, V, C_s, H_s, W_s] (or the first 1-3 of them) -> the same shapes, refined.
 
         In eval without autograd the finer features are refined in place (their tensors are overwritten).
         """
-        f1, f2, f3, f4 = features
+        f1, finer = features[0], [f.flatten(0, 1) for f in features[1:]]
         B, V = f1.shape[:2]
         ref, src = self.FMT(f1[:, 0], f1[:, 1:].flatten(0, 1) if V > 1 else None)
         s1 = ref[:, None] if src is None else torch.cat([ref[:, None], src.reshape(B, V - 1, *src.shape[1:])], 1)
         s1 = s1.flatten(0, 1)
-        f2, f3, f4 = f2.flatten(0, 1), f3.flatten(0, 1), f4.flatten(0, 1)
-        if not prepared.lean():
-            s2, s3, s4 = self.pathway(s1, f2, f3, f4)
+        if not finer:
+            refined = []
+        elif not prepared.lean():
+            refined = self.pathway(s1, *finer)
         else:  # image by image, each result written over its input: a much smaller working set
             from mvsformerpp.models.features import per_image
 
-            s2, s3, s4 = per_image(self.pathway, len(s1), s1, f2, f3, f4, out=[f2, f3, f4])
-        return [s.reshape(B, V, *s.shape[1:]) for s in (s1, s2, s3, s4)]
+            refined = per_image(self.pathway, len(s1), s1, *finer, out=finer)
+        return [s.reshape(B, V, *s.shape[1:]) for s in (s1, *refined)]

@@ -89,17 +89,18 @@ class FPNDecoder(nn.Module):
         self.inner3 = nn.Conv2d(c0, c3, 1)
         self.out3 = out_block(c3, c0, 3)
 
-    def forward(self, conv01, conv11, conv21, conv31) -> list[torch.Tensor]:
+    def forward(self, conv01, conv11, conv21, conv31, levels: int = 4) -> list[torch.Tensor]:
+        """The features of the first ``levels`` stages (1/8 first); coarser-only training asks for fewer."""
         forms = prepared.forms(self)
         if forms is not None:
-            return self._forward_prepared(forms, conv01, conv11, conv21, conv31)
-        out0 = self.out0(conv31)
-        t1 = _up2(conv31) + self.inner1(conv21)
-        out1 = self.out1(t1)
-        t2 = _up2(t1) + self.inner2(conv11)
-        out2 = self.out2(t2)
-        out3 = self.out3(_up2(t2) + self.inner3(conv01))
-        return [out0, out1, out2, out3]
+            return self._forward_prepared(forms, conv01, conv11, conv21, conv31)[:levels]
+        outs = [self.out0(conv31)]
+        t = conv31
+        for inner, out, skip in ((self.inner1, self.out1, conv21), (self.inner2, self.out2, conv11),
+                                 (self.inner3, self.out3, conv01))[:levels - 1]:
+            t = _up2(t) + inner(skip)
+            outs.append(out(t))
+        return outs
 
     def build_inference_forms(self) -> dict:
         """Folded, channels-last convolutions; the last level as the two weights of

@@ -89,7 +89,7 @@ class MVSFormerPP(nn.Module):
 
     def forward(self, imgs: torch.Tensor, proj_matrices: dict, depth_values: torch.Tensor,
                 temperatures=None, image_features: ImageFeatures | None = None,
-                release_features: bool = False, window_guide: dict | None = None) -> dict:
+                release_features: bool = False, window_guide: dict | None = None, stages: int | None = None) -> dict:
         """Run the cascade.
 
         Args:
@@ -110,6 +110,8 @@ class MVSFormerPP(nn.Module):
                 [-1, 1]) times the window's half-width, instead of on the stage's own estimate, so that
                 the truth lies inside the finer stages' windows (see
                 ``TrainConfig.window_guide``). None: the reference's cascade.
+            stages: run only the first ``stages`` cascade stages (training the coarse stages alone); the
+                outputs then hold those stages, and "depth" is the last one's, at its resolution.
         Returns:
             {"stage1".."stage4": {"depth" [B,h,w], "photometric_confidence" [B,h,w],
             "prob_volume_pre" [B,D,h,w] logits, "depth_values" [B,D,h,w] hypotheses},
@@ -118,18 +120,21 @@ class MVSFormerPP(nn.Module):
         B, V, _, H, W = imgs.shape
         if H % 32 or W % 32:
             raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
+        if stages is not None and not 1 <= stages <= len(self.fusions):
+            raise ValueError(f"stages must be between 1 and {len(self.fusions)}, got {stages}")
         with prepared.session(self):
             return self._forward(imgs, proj_matrices, depth_values, temperatures, image_features, release_features,
-                                 window_guide)
+                                 window_guide, stages)
 
     def _forward(self, imgs, proj_matrices, depth_values, temperatures, image_features, release_features,
-                 window_guide=None) -> dict:
+                 window_guide=None, stages=None) -> dict:
         B, V, _, H, W = imgs.shape
         cfg = self.config
         own = image_features is None
         if own:
             image_features = self.encode_images(imgs.reshape(B * V, *imgs.shape[2:]))
-        features = decode_views(self.decoder_vit, self.decoder, image_features, B, V)
+        run = self.fusions if stages is None else self.fusions[:stages]
+        features = decode_views(self.decoder_vit, self.decoder, image_features, B, V, len(run))
         if own:
             del image_features  # the encoder maps are not needed any more: free them before the FMT
         elif release_features:
@@ -140,7 +145,7 @@ class MVSFormerPP(nn.Module):
         outputs: dict = {}
         conf_sum = torch.zeros(B, H, W, dtype=torch.float32, device=imgs.device)
         prev = None
-        for s, stage in enumerate(self.fusions):
+        for s, stage in enumerate(run):
             feat, features[s] = features[s], None  # each stage's features are freed after its cost volume
             h, w = feat.shape[-2:]
             proj = proj_matrices[f"stage{s + 1}"]
@@ -166,7 +171,7 @@ class MVSFormerPP(nn.Module):
                 conf = F.interpolate(conf[:, None], (H, W), mode="nearest")[:, 0]
             conf_sum = conf_sum + conf
         outputs["depth"] = prev["depth"]
-        outputs["photometric_confidence"] = conf_sum / len(self.fusions)
+        outputs["photometric_confidence"] = conf_sum / len(run)
         return outputs
 
 

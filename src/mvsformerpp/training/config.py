@@ -131,6 +131,13 @@ class TrainConfig:
     by up to its half-width) instead of the previous stage's estimate: the truth then lies inside every fine
     stage's window, so they train on all pixels, not only where the coarser stages were right (0: the
     reference's training)."""
+    train_stages: int = 4
+    """Cascade stages a training step runs and scores (1-4): fewer trains the coarse stages alone at a
+    fraction of the cost (the later stages are frozen; validation still runs all four)."""
+    trainable: tuple[str, ...] = ()
+    """Parameter-name prefixes that train (for example ``["fusions.0"]``: stage 1's cost-volume
+    transformer and visibility net); the rest is frozen, its BatchNorm statistics kept. Empty: every
+    parameter (but a frozen DINOv2)."""
     grad_clip: float | None = None
     """Clip the gradient norm at this value (None: no clipping, as the reference)."""
     max_bad_steps: int = 20
@@ -385,6 +392,8 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError(f"resize_range must be two numbers 0 < low <= high, got {list(config.resize_range)}")
     if config.loss_weights is not None and not all(math.isfinite(w) and w >= 0 for w in config.loss_weights):
         raise InputError(f"loss_weights must be four numbers >= 0, got {list(config.loss_weights)}")
+    if not 1 <= config.train_stages <= 4:
+        raise InputError(f"train_stages must be 1, 2, 3 or 4 (the cascade stages trained), got {config.train_stages}")
     if config.recipe == "synthetic":
         from mvsformerpp.data.synthetic import resolve_source
 

@@ -25,7 +25,7 @@ from torch.utils.data import DataLoader
 
 from mvsformerpp.data.base import MVSDataset, SampleKey
 from mvsformerpp.data.samplers import MultiScaleBatchSampler
-from mvsformerpp.errors import MVSFormerError
+from mvsformerpp.errors import InputError, MVSFormerError
 from mvsformerpp.evaluation.depth import DepthSums, depth_sums
 from mvsformerpp.models.config import get_config
 from mvsformerpp.models.loss import cascade_loss
@@ -65,6 +65,36 @@ def build_training_model(config: TrainConfig) -> MVSFormerPP:
     if config.init_checkpoint:
         load_checkpoint(model, config.init_checkpoint)
     return model
+
+
+def freeze(model: MVSFormerPP, config: TrainConfig) -> list[torch.nn.Module]:
+    """Freeze what ``trainable`` leaves out and the stages after ``train_stages``; returns the modules
+    that then hold no trainable parameter (kept in eval mode by :func:`set_train_mode`)."""
+    if not config.trainable and config.train_stages >= len(model.fusions):
+        return []
+    names = [n for n, _ in model.named_parameters()]
+    for prefix in config.trainable:
+        if not any(n == prefix or n.startswith(prefix.rstrip(".") + ".") for n in names):
+            tops = sorted({n.split(".")[0] for n in names})
+            raise InputError(f"trainable prefix {prefix!r} names no parameter of the {config.preset} network; "
+                             f"its parameters start with {tops} (e.g. fusions.0 for stage 1)")
+    for name, p in model.named_parameters():
+        keep = not config.trainable or any(name == q or name.startswith(q.rstrip(".") + ".") for q in config.trainable)
+        p.requires_grad_(p.requires_grad and keep)
+    for stage in model.fusions[config.train_stages:]:
+        stage.requires_grad_(False)
+    if not any(p.requires_grad for p in model.parameters()):
+        raise InputError(f"nothing left to train: trainable {list(config.trainable)} names only parameters of "
+                         f"stages after train_stages={config.train_stages}")
+    return [m for m in model.modules()
+            if any(True for _ in m.parameters()) and not any(p.requires_grad for p in m.parameters())]
+
+
+def set_train_mode(model: torch.nn.Module, frozen: list[torch.nn.Module]) -> None:
+    """Training mode, with the frozen modules in eval mode (their BatchNorm statistics stay as loaded)."""
+    model.train()
+    for m in frozen:
+        m.eval()
 
 
 def build_optimizer(model: torch.nn.Module, config: TrainConfig):
@@ -164,6 +194,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
     device = info.device
     random.seed(config.seed)
     model = build_training_model(config).to(device)
+    frozen = freeze(model, config)
     loss_weights = tuple(config.loss_weights or model.config.loss_weights)
     opt = build_optimizer(model, config)
     per_epoch = MultiScaleBatchSampler.batches_per_epoch(len(train_ds), config.batch_size)
@@ -185,7 +216,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
     log = MetricsLog(run_dir, config.tensorboard, resume_step=step if resume else None) if info.is_main else None
     per_rank = config.batch_size // info.world_size
     bar = _Bar(total, step, config.progress and info.is_main)
-    ddp_model.train()
+    set_train_mode(ddp_model, frozen)
     # the running means of the next metrics row (kept in the checkpoint, so resumed rows are the same)
     t_log, n_log, sums, n_steps = time.perf_counter(), 0, None, 0
     if resume and state.get("log_window"):
@@ -205,6 +236,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
         nonlocal best, last_val
         if info.is_main:
             metrics = validate(model, val_ds, config, device, loss_weights)
+            set_train_mode(ddp_model, frozen)
             last_val = {"step": step, "split": "val", **metrics}
             log.write(last_val, prefix="val")
             value = metrics.get(config.best_metric, math.nan)
@@ -249,7 +281,7 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
                     avg = (sums / n_steps).tolist()
                     sps = n_log / max(time.perf_counter() - t_log, 1e-9)
                     log.write({"step": step, "epoch": step / per_epoch, "loss": avg[0], "lr": lr,
-                               **{f"stage{i + 1}": v for i, v in enumerate(avg[1:])},
+                               **{f"stage{i + 1}": v for i, v in enumerate(avg[1:]) if i < config.train_stages},
                                "samples_per_s": sps, "bad_steps": bad_steps})
                     bar.update(loss=f"{avg[0]:.3f}", lr=f"{lr:.2e}", sps=f"{sps:.2f}")
                     t_log, n_log, sums, n_steps = time.perf_counter(), 0, None, 0
@@ -304,8 +336,10 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
         with contextlib.nullcontext() if sync else model.no_sync():
             with autocast(device, config.precision):
                 guide = window_guide(chunk, config.window_guide, guides)
-                out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"],
-                            **({"window_guide": guide} if guide is not None else {}))
+                extra = {"window_guide": guide} if guide is not None else {}
+                if config.train_stages < 4:
+                    extra["stages"] = config.train_stages
+                out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"], **extra)
             loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
             share = (b - a) / per_rank
             finite = bool(torch.isfinite(loss))
