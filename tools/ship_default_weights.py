@@ -2,10 +2,14 @@
 
     python tools/ship_default_weights.py RUN_DIR/checkpoints/best.safetensors --run RUN_DIR \
         [--quality quality.json] [--info key=value ...]
+    python tools/ship_default_weights.py src/mvsformerpp/assets/weights/FILE --same-training \
+        --quality quality.json     # the same weights again, re-measured (e.g. after a change of the preset)
 
 Writes src/mvsformerpp/assets/weights/<file> and default.json (size, SHA-256, the training facts given,
 the run's config.yaml and last metrics, and the measured quality when --quality is given; a quality file
 made with ``--calibrate`` also gives the fusion confidence thresholds ``reconstruct`` uses with them).
+The file stores the ``lite`` preset's config (what ``reconstruct`` builds for it), whatever the
+checkpoint stored; ``--same-training`` keeps the training facts of the record shipped now.
 """
 
 from __future__ import annotations
@@ -20,17 +24,26 @@ FILE_NAME = "mvsformerpp-lite-synthetic.safetensors"
 def main() -> None:
     import yaml
 
-    from mvsformerpp.models.checkpoint import load_model
-    from mvsformerpp.models.shipped import WEIGHTS_DIR, write_shipped
+    from mvsformerpp.models import build_model
+    from mvsformerpp.models.checkpoint import load_checkpoint
+    from mvsformerpp.models.shipped import SHIPPED_PRESET, WEIGHTS_DIR, shipped_record, write_shipped
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("checkpoint")
     p.add_argument("--run", help="the training run folder (config.yaml, metrics.jsonl)")
     p.add_argument("--quality", help="JSON written by bench/eval_default_model.py")
     p.add_argument("--info", action="append", default=[], metavar="KEY=VALUE", help="extra facts for the record")
+    p.add_argument("--same-training", action="store_true",
+                   help="keep the training facts of the weights shipped now (re-shipping them re-measured)")
     args = p.parse_args()
-    model = load_model(args.checkpoint)
-    info: dict = dict(kv.split("=", 1) for kv in args.info)
+    if args.same_training and args.run:
+        p.error("--same-training keeps the shipped record's training facts: leave out --run")
+    model = load_checkpoint(build_model(SHIPPED_PRESET), args.checkpoint)
+    info: dict = {}
+    if args.same_training:
+        measured = ("file", "preset", "bytes", "sha256", "quality", "fusion_conf", "fusion_calibration")
+        info = {k: v for k, v in shipped_record().items() if k not in measured}
+    info.update(kv.split("=", 1) for kv in args.info)
     if args.run:
         run = Path(args.run)
         info["training_config"] = yaml.safe_load((run / "config.yaml").read_text())
@@ -49,7 +62,7 @@ def main() -> None:
         if calibration is not None:  # bench/eval_default_model.py --calibrate: the thresholds fusion uses
             info["fusion_conf"] = calibration["fusion_conf"]
             info["fusion_calibration"] = calibration
-    path = write_shipped(model, "lite", WEIGHTS_DIR, FILE_NAME, info)
+    path = write_shipped(model, SHIPPED_PRESET, WEIGHTS_DIR, FILE_NAME, info)
     print(f"wrote {path} ({path.stat().st_size / 2**20:.1f} MiB) and {WEIGHTS_DIR / 'default.json'}")
 
 

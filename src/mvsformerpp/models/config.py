@@ -40,6 +40,11 @@ class ModelConfig:
     cvt_patch: tuple[int, int, int] = (2, 4, 4)
     cvt_train_avg_tokens: int = 12185
     """n_train of adaptive attention scaling."""
+    local_evidence: float = 0.0
+    """Weight of stage 1's local matching evidence (:func:`~mvsformerpp.models.cvt.local_evidence`) added to
+    the cost-volume transformer's logits; 0: the reference's stage 1 (no weights depend on it)."""
+    local_evidence_box: int = 9
+    """Side, in stage-1 cells (8 photo pixels), of the square window that aggregates that evidence."""
     temperatures: tuple[float, float, float, float] = (5.0, 5.0, 5.0, 1.0)
     """Inference temperature per stage."""
     loss_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
@@ -67,7 +72,10 @@ PRESETS: dict[str, ModelConfig] = {
     # training recipe blended_finetune overrides this with all four stages unless loss_weights is null.
     "paper_finetune": ModelConfig(loss_weights=(0.0, 0.0, 0.0, 1.0)),
     # Same architecture, much smaller ViT and SVA, trainable backbone (no pretrained weights exist).
-    "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2),
+    # Stage 1 adds the cost volume's own window-aggregated evidence to its transformer's logits (weight and
+    # window chosen on synthetic calibration scenes: docs/model-card.md, "Stage 1's local evidence").
+    "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2,
+                        local_evidence=2.0, local_evidence_box=13),
 }
 
 
@@ -78,7 +86,8 @@ def get_config(preset: str = "paper", **overrides) -> ModelConfig:
 
 
 # Fields that change only how a network runs or trains, not which weights fit it.
-_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit")
+_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", "local_evidence",
+                     "local_evidence_box")
 
 
 def architecture(config: ModelConfig) -> dict:

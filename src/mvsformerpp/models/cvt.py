@@ -7,6 +7,7 @@ from __future__ import annotations
 import math
 
 import torch
+import torch.nn.functional as F
 from torch import nn
 
 from mvsformerpp.models.attention import softmax_attention
@@ -55,6 +56,22 @@ def sine_encoding_3d(coords: torch.Tensor, channels: int, rescale: float = 4.0) 
         pe = torch.stack((torch.sin(a), torch.cos(a)), dim=2).reshape(B, channels, -1)
         out.append(pe)
     return torch.cat(out, dim=1).reshape(B, 3 * channels, D, H, W)
+
+
+def local_evidence(volume: torch.Tensor, box: int) -> torch.Tensor:
+    """What the cost volume itself says about each pixel's depth, aggregated over its neighbours.
+
+    [B, G, D, H, W] group correlations -> [B, 1, D, H, W]: the sum over groups, averaged over a box x box
+    window of cells at every hypothesis (classic window matching; zero padding, counted), then
+    standardised over the hypotheses at each pixel (zero mean, unit deviation), so that its scale does
+    not depend on the features' magnitude. Added to the transformer's logits it gives stage 1 per-cell
+    evidence that the patch tokens (4 x 4 cells each, decoded patch by patch) blur.
+    """
+    score = volume.float().sum(1)  # [B, D, H, W]
+    if box > 1:
+        score = F.avg_pool2d(score, box, 1, box // 2, count_include_pad=True)
+    score = score - score.mean(1, keepdim=True)
+    return (score / (score.std(1, keepdim=True) + 1e-6))[:, None]
 
 
 class CVTAttention(nn.Module):
@@ -107,9 +124,13 @@ class CostVolumeTransformer(nn.Module):
     """[B, C, D, H, W] cost volume (+ FPE) -> logits [B, 1, D, H, W]."""
 
     def __init__(self, in_ch: int = 8, mid_ch: int = 64, num_heads: int = 4, num_layers: int = 6,
-                 patch=(2, 4, 4), mlp_ratio: float = 4.0, train_avg_tokens: int = TRAIN_AVG_TOKENS):
+                 patch=(2, 4, 4), mlp_ratio: float = 4.0, train_avg_tokens: int = TRAIN_AVG_TOKENS,
+                 local_weight: float = 0.0, local_box: int = 9):
         super().__init__()
+        if local_box < 1 or local_box % 2 == 0:
+            raise ValueError(f"local_evidence_box must be an odd number of cells >= 1, got {local_box}")
         self.in_ch = in_ch
+        self.local_weight, self.local_box = float(local_weight), int(local_box)
         self.pe_proj = nn.Conv3d(in_ch * 3, in_ch, 1, bias=False)
         self.down = nn.Sequential(nn.Conv3d(in_ch, mid_ch, patch, stride=patch), LayerNorm3D(mid_ch))
         self.attention_layers = nn.ModuleList(
@@ -119,6 +140,7 @@ class CostVolumeTransformer(nn.Module):
         self.prob = nn.Conv3d(in_ch, 1, 1)
 
     def forward(self, volume: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
+        evidence = local_evidence(volume, self.local_box) if self.local_weight else None
         if coords is not None:
             volume = volume + self.pe_proj(sine_encoding_3d(coords, self.in_ch))
         x = self.down(volume)
@@ -127,4 +149,5 @@ class CostVolumeTransformer(nn.Module):
         for layer in self.attention_layers:
             tokens = layer(tokens)
         x = tokens.reshape(B, h, w, d, C).permute(0, 4, 3, 1, 2)
-        return self.prob(self.up(x))
+        logits = self.prob(self.up(x))
+        return logits if evidence is None else logits.add_(evidence, alpha=self.local_weight)

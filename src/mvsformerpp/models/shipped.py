@@ -89,6 +89,7 @@ def load_shipped(model: torch.nn.Module | None = None) -> torch.nn.Module:
     ``model`` must have the shipped preset's architecture; otherwise the error names that preset.
     """
     from mvsformerpp.models.checkpoint import load_state_dict_strict, read_safetensors
+    from mvsformerpp.models.config import architecture
     from mvsformerpp.models.mvsformer import MVSFormerPP
 
     path = verify()
@@ -100,7 +101,8 @@ def load_shipped(model: torch.nn.Module | None = None) -> torch.nn.Module:
         if config is None:
             raise FormatError(f"the default weights have no stored config: {RESTORE}", path)
         model = MVSFormerPP(config)
-    elif config is not None and getattr(model, "config", None) is not None and model.config != config:
+    elif config is not None and getattr(model, "config", None) is not None and \
+            architecture(model.config) != architecture(config):
         raise InputError(f"the shipped default weights are for the '{SHIPPED_PRESET}' preset, not this network: "
                          f"build it with --preset {SHIPPED_PRESET} (or pass --checkpoint)", path)
     dtypes = {k: v.dtype for k, v in model.state_dict().items()}
