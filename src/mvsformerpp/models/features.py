@@ -100,6 +100,6 @@ def decode_views(decoder_vit: SideViewAttention, decoder: FPNDecoder, feats: Ima
     if not prepared.lean():  # in training, BatchNorm batch statistics over all B*V images
         stages = decoder(conv01, conv11, conv21, conv31, levels)
     else:  # eval without autograd: image by image, the same result with a much smaller working set
-        stages = per_image(decoder, B * V, conv01, conv11, conv21, conv31)[:levels]
+        stages = per_image(lambda *maps: decoder(*maps, levels), B * V, conv01, conv11, conv21, conv31)
     return [s.reshape(B, V, *s.shape[1:]) for s in stages]
 

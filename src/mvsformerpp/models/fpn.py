@@ -93,7 +93,7 @@ class FPNDecoder(nn.Module):
         """The features of the first ``levels`` stages (1/8 first); coarser-only training asks for fewer."""
         forms = prepared.forms(self)
         if forms is not None:
-            return self._forward_prepared(forms, conv01, conv11, conv21, conv31)[:levels]
+            return self._forward_prepared(forms, conv01, conv11, conv21, conv31, levels)
         outs = [self.out0(conv31)]
         t = conv31
         for inner, out, skip in ((self.inner1, self.out1, conv21), (self.inner2, self.out2, conv11),
@@ -114,16 +114,22 @@ class FPNDecoder(nn.Module):
                      w[:, conv.in_channels:].contiguous(memory_format=_CL), b, inner.bias.detach().view(1, -1, 1, 1))
         return f
 
-    def _forward_prepared(self, forms, conv01, conv11, conv21, conv31) -> list[torch.Tensor]:
-        """forward in channels-last memory with in-place sums."""
+    def _forward_prepared(self, forms, conv01, conv11, conv21, conv31, levels: int = 4) -> list[torch.Tensor]:
+        """forward in channels-last memory with in-place sums (the first ``levels`` levels)."""
         conv31 = conv31.contiguous(memory_format=_CL)
-        out0 = _out_block_cl(conv31, forms["out0"], self.out0)
+        outs = [_out_block_cl(conv31, forms["out0"], self.out0)]
+        if levels == 1:
+            return outs
         t1 = _up2(conv31).add_(_conv_cl(conv21, forms["inner1"], self.inner1))
-        out1 = _out_block_cl(t1, forms["out1"], self.out1)
+        outs.append(_out_block_cl(t1, forms["out1"], self.out1))
+        if levels == 2:
+            return outs
         t2 = _up2(t1).add_(_conv_cl(conv11, forms["inner2"], self.inner2))
         del t1
-        out2 = _out_block_cl(t2, forms["out2"], self.out2)
-        return [out0, out1, out2, self._last_level_prepared(forms["last"], t2, conv01)]
+        outs.append(_out_block_cl(t2, forms["out2"], self.out2))
+        if levels == 3:
+            return outs
+        return [*outs, self._last_level_prepared(forms["last"], t2, conv01)]
 
     @staticmethod
     def _last_level_prepared(last: tuple, t2: torch.Tensor, conv01: torch.Tensor) -> torch.Tensor:

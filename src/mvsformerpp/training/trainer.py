@@ -72,14 +72,17 @@ def freeze(model: MVSFormerPP, config: TrainConfig) -> list[torch.nn.Module]:
     that then hold no trainable parameter (kept in eval mode by :func:`set_train_mode`)."""
     if not config.trainable and config.train_stages >= len(model.fusions):
         return []
+    def under(name: str, prefix: str) -> bool:
+        return name == prefix or name.startswith(prefix.rstrip(".") + ".")
+
     names = [n for n, _ in model.named_parameters()]
     for prefix in config.trainable:
-        if not any(n == prefix or n.startswith(prefix.rstrip(".") + ".") for n in names):
+        if not any(under(n, prefix) for n in names):
             tops = sorted({n.split(".")[0] for n in names})
             raise InputError(f"trainable prefix {prefix!r} names no parameter of the {config.preset} network; "
                              f"its parameters start with {tops} (e.g. fusions.0 for stage 1)")
     for name, p in model.named_parameters():
-        keep = not config.trainable or any(name == q or name.startswith(q.rstrip(".") + ".") for q in config.trainable)
+        keep = not config.trainable or any(under(name, q) for q in config.trainable)
         p.requires_grad_(p.requires_grad and keep)
     for stage in model.fusions[config.train_stages:]:
         stage.requires_grad_(False)
