@@ -23,13 +23,11 @@ import tempfile
 import time
 from pathlib import Path
 
-WINDOWS = (400.0, 2400.0)
-"""Photo widths of the ``*_windows`` rows: views cut from photos this wide (real cameras' focal lengths)."""
-
 
 def main() -> None:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG
     from mvsformerpp.pipelines.model_quality import (
+        WINDOWS,
         calibrate_fusion_conf,
         dtu_pair_quality,
         synthetic_quality,

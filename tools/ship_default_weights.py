@@ -58,6 +58,8 @@ def main() -> None:
     if args.quality:
         quality = json.loads(Path(args.quality).read_text())
         calibration = quality.pop("calibration", None)
+        if isinstance(quality.get("weights"), str):  # the record names files inside the package, not this machine's
+            quality["weights"] = quality["weights"].replace(f"{Path(__file__).resolve().parents[1]}/", "")
         info["quality"] = quality
         if calibration is not None:  # bench/eval_default_model.py --calibrate: the thresholds fusion uses
             info["fusion_conf"] = calibration["fusion_conf"]

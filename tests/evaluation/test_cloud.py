@@ -107,3 +107,16 @@ def test_gaussian_noise_matches_half_normal_statistics():
     assert m.accuracy == pytest.approx(sigma * np.sqrt(2 / np.pi), rel=0.03)  # E|n| of N(0, sigma^2)
     assert m.precision == pytest.approx(2 * norm.cdf(tau / sigma) - 1, abs=0.02)
     assert m.recall == m.precision  # the same pairs, seen from the other side
+
+
+def test_f_beta_is_the_weighted_harmonic_mean():
+    """1/F_beta = (1/P + beta^2/R) / (1 + beta^2): beta 1 is the plain harmonic mean, small beta tends to
+    the precision, large beta to the recall, and zero stays zero."""
+    p, r = 0.9, 0.3
+    assert f_score(p, r) == pytest.approx(2 / (1 / p + 1 / r))
+    for beta in (0.25, 0.5, 2.0):
+        assert f_score(p, r, beta) == pytest.approx((1 + beta**2) / (1 / p + beta**2 / r))
+    assert f_score(p, r, 1e-4) == pytest.approx(p, rel=1e-6)
+    assert f_score(p, r, 1e4) == pytest.approx(r, rel=1e-6)
+    assert f_score(p, r, 0.5) > f_score(p, r) > f_score(p, r, 2.0)  # precision is the larger here
+    assert f_score(0.0, 0.0, 0.5) == 0.0

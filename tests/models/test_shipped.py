@@ -149,3 +149,16 @@ def test_fusion_threshold_calibrated_for_the_shipped_weights(monkeypatch, tmp_pa
     assert shipped_weights_conf(tmp_path, "dynamic") is None
     (tmp_path / "config.json").write_text("{not json")
     assert shipped_weights_conf(tmp_path, "dynamic") is None
+
+
+def test_shipped_fusion_thresholds_follow_the_calibration_rule():
+    """The record's thresholds are what the calibration rule picks from the sweep stored beside them, for
+    every method (a record edited by hand, or made by an older rule, fails)."""
+    from mvsformerpp.pipelines.model_quality import FUSION_BETA, pick_threshold
+
+    record = shipped.shipped_record()
+    calibration = record["fusion_calibration"]
+    assert calibration["beta"] == FUSION_BETA
+    assert set(record["fusion_conf"]) == set(calibration["table"])
+    for method, rows in calibration["table"].items():
+        assert record["fusion_conf"][method] == pick_threshold(rows)

@@ -73,9 +73,14 @@ class CloudDistances:
         return {"thresholds": t, "precision": p, "recall": r, "f_score": f}
 
 
-def f_score(precision: float, recall: float) -> float:
-    """Harmonic mean of precision and recall; 0 when both are 0."""
-    return 0.0 if precision + recall <= 0 else 2.0 * precision * recall / (precision + recall)
+def f_score(precision: float, recall: float, beta: float = 1.0) -> float:
+    """F-score: the harmonic mean of precision and recall (``beta`` 1); 0 when both are 0.
+
+    Other ``beta`` give the weighted harmonic mean 1/F = (1/P + beta^2/R) / (1 + beta^2): recall
+    counts ``beta`` times as much as precision (beta < 1: precision counts more)."""
+    b2 = beta * beta
+    den = b2 * precision + recall
+    return 0.0 if den <= 0 else (1.0 + b2) * precision * recall / den
 
 
 def cloud_distances(pred: np.ndarray, gt: np.ndarray, max_dist: float = np.inf) -> CloudDistances:

@@ -9,7 +9,8 @@
 - :func:`dtu_pair_quality`: the two real DTU views with ground-truth depth in ``tests/data/dtu_pair``:
   the share of valid ground-truth pixels within 4 mm and 8 mm, and within 10 % of the true depth.
 - :func:`calibrate_fusion_conf`: the fusion confidence threshold that suits a set of weights, chosen on
-  synthetic scenes of other seeds (:data:`CALIBRATION_SEED`) by the fused cloud's F-score.
+  synthetic scenes of other seeds (:data:`CALIBRATION_SEED`) by the fused cloud's F_beta score
+  (precision weighted: :data:`FUSION_BETA`).
 - :func:`temple_quality`: the Middlebury temple of the demo: fused points, the share inside the
   object's bounding box (its README), and the share of points that project onto the object in each
   photo (the background is black: the object is where the photo is brighter than :data:`DARK`).
@@ -29,10 +30,18 @@ HELDOUT_SEED = 5_000_000
 """First scene seed of the held-out synthetic evaluation (far from every training and validation seed)."""
 CALIBRATION_SEED = 2_000_000
 """First scene seed of the fusion-threshold calibration (no training, validation or evaluation seed)."""
+WINDOWS = (400.0, 2400.0)
+"""Sensor widths (pixels) of the photos whose windows make the ``windows`` kinds of synthetic views (the
+focal lengths of real cameras at their working size; :func:`~mvsformerpp.synth.generate_scene`)."""
+CALIBRATION_KINDS = (("train", None), ("heldout", None), ("train", WINDOWS), ("heldout", WINDOWS))
+"""The kinds of synthetic scenes (style, sensor widths) that :func:`calibrate_fusion_conf` fuses."""
 CONF_GRID = tuple(round(0.05 * k, 2) for k in range(1, 15))
 """Confidence thresholds tried by :func:`calibrate_fusion_conf` (0.05 .. 0.7)."""
 F_SCORE_TIE = 0.01
 """Relative F-score difference under which two thresholds count as equally good."""
+FUSION_BETA = 0.5
+"""The calibration scores clouds by F_beta with this beta: precision counts twice as much as recall, since
+a floating point spoils a real cloud more than a missing one (the synthetic scenes are cleaner than photos)."""
 DARK = 20
 """Temple photos: pixels whose brightest channel is at most this (of 255) are background."""
 
@@ -114,34 +123,38 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
 def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes: int = 4,
                           seed: int = CALIBRATION_SEED, methods=("normal", "dynamic", "gipuma"),
                           grid=CONF_GRID, tau_pct: float = 1.0, num_views: int = 5, height: int = 192,
-                          width: int = 256, quiet: bool = True) -> dict:
+                          width: int = 256, kinds=CALIBRATION_KINDS, quiet: bool = True) -> dict:
     """For each fusion method, the confidence threshold of ``grid`` whose fused clouds have the best mean
-    F-score at ``tau_pct`` % of the mean scene depth, on ``scenes`` synthetic scenes of the training style
-    (seeds ``seed ..``) reconstructed with ``config``'s network."""
+    F_beta (:data:`FUSION_BETA`) at ``tau_pct`` % of the mean scene depth, on ``scenes`` synthetic scenes
+    (seeds ``seed ..``) of each of ``kinds`` ((style, sensor width range or None) pairs: by default the
+    four kinds the quality check measures) reconstructed with ``config``'s network."""
     from mvsformerpp.synth import generate_scene
 
     out = Path(out_dir)
     folders = []
-    for k in range(scenes):
-        scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
-                                   width=width, style="train")
-        cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views),
-                                  fusion="none")
-        reconstruct(scene_dir, out / f"recon_{k}", cfg, quiet=quiet)
-        folders.append((scene_dir, out / f"recon_{k}"))
-    return {"scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
+    cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views),
+                              fusion="none")
+    for style, sensor_width in kinds:
+        name = style + ("" if sensor_width is None else "_windows")
+        for k in range(scenes):
+            scene_dir = generate_scene(out / f"{name}_scene_{k}", seed=seed + k, num_views=num_views, height=height,
+                                       width=width, style=style, sensor_width=sensor_width)
+            reconstruct(scene_dir, out / f"{name}_recon_{k}", cfg, quiet=quiet)
+            folders.append((scene_dir, out / f"{name}_recon_{k}"))
+    return {"scenes": scenes, "kinds": [[style, None if sw is None else list(sw)] for style, sw in kinds],
+            "first_seed": seed, "size": [height, width], "views": num_views,
             **choose_fusion_conf(folders, methods, grid, tau_pct)}
 
 
 def choose_fusion_conf(folders, methods=("normal", "dynamic", "gipuma"), grid=CONF_GRID,
-                       tau_pct: float = 1.0) -> dict:
+                       tau_pct: float = 1.0, beta: float = FUSION_BETA) -> dict:
     """The F-score sweep of :func:`calibrate_fusion_conf` over (synthetic scene, depth-map folder) pairs:
-    ``{"fusion_conf": {method: threshold}, "tau_pct", "table": {method: [rows per threshold]}}``. Of the
-    thresholds whose F-score is within :data:`F_SCORE_TIE` of the best, the highest is chosen: real photos
-    are noisier than the synthetic scenes, so among equals the stricter filter."""
+    ``{"fusion_conf": {method: threshold}, "tau_pct", "beta", "table": {method: [rows per threshold]}}``
+    (each row: the mean precision, recall, F-score and F_beta over the scenes); the threshold of each
+    method is :func:`pick_threshold`'s."""
     import tempfile
 
-    from mvsformerpp.evaluation.cloud import evaluate_clouds
+    from mvsformerpp.evaluation.cloud import evaluate_clouds, f_score
     from mvsformerpp.fusion import get_config
     from mvsformerpp.io.pfm import read_pfm
     from mvsformerpp.io.ply import ply_points, read_ply
@@ -164,16 +177,22 @@ def choose_fusion_conf(folders, methods=("normal", "dynamic", "gipuma"), grid=CO
                          explain_empty=False)
                     pred = ply_points(read_ply(ply)).astype(np.float64)
                     if len(pred) == 0:
-                        scores.append((0.0, 0.0, 0.0))
+                        scores.append((0.0, 0.0, 0.0, 0.0))
                         continue
                     m = evaluate_clouds(pred, gt, tau_pct / 100 * mean_depth)
-                    scores.append((m.precision, m.recall, m.f_score))
-                p, r, f = (float(np.mean(col)) for col in zip(*scores))
-                rows.append({"conf": conf, "precision": p, "recall": r, "f_score": f})
+                    scores.append((m.precision, m.recall, m.f_score, f_score(m.precision, m.recall, beta)))
+                p, r, f, fb = (float(np.mean(col)) for col in zip(*scores))
+                rows.append({"conf": conf, "precision": p, "recall": r, "f_score": f, "f_beta": fb})
             table[method] = rows
-            top = max(row["f_score"] for row in rows)
-            best[method] = max(row["conf"] for row in rows if row["f_score"] >= (1 - F_SCORE_TIE) * top)
-    return {"fusion_conf": best, "tau_pct": tau_pct, "table": table}
+            best[method] = pick_threshold(rows)
+    return {"fusion_conf": best, "tau_pct": tau_pct, "beta": beta, "table": table}
+
+
+def pick_threshold(rows: list[dict], tie: float = F_SCORE_TIE) -> float:
+    """Of the thresholds (rows ``{"conf", "f_beta"}``) whose F_beta is within ``tie`` (relative) of the best,
+    the highest: among equals the stricter filter, since real photos are noisier than the scenes."""
+    top = max(row["f_beta"] for row in rows)
+    return max(row["conf"] for row in rows if row["f_beta"] >= (1 - tie) * top)
 
 
 def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: ReconstructConfig,
