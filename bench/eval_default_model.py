@@ -9,8 +9,9 @@ stores them in the shipped record. Without it, the shipped weights fuse with the
 thresholds and other weights with the presets'.
 
 Synthetic: ``--scenes`` scenes of the training style on seeds no run trains on, and as many of the
-held-out style, each as whole small photos and as windows of 400-2400 px photos (``*_windows``)
-(see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair with ground-truth depth
+held-out style, each as whole small photos and as windows of 400-2400 px photos (``*_windows``), and
+as many rooms seen by a walking handheld camera at 640x480 (``synthetic_rooms``: indoor video, with the
+median AbsRel) (see ``mvsformerpp.pipelines.model_quality``); real: the DTU pair with ground-truth depth
 (tests/data/dtu_pair) and the Middlebury temple of the demo. Prints one table and writes the JSON.
 """
 
@@ -66,15 +67,19 @@ def main() -> None:
                                                               scenes=args.scenes)
             results[f"synthetic_{style}_windows"] = synthetic_quality(
                 out / f"synth_{style}_windows", config, style=style, scenes=args.scenes, sensor_width=WINDOWS)
+        # indoor video: rooms seen by a walking handheld camera, at a depth camera's 640x480
+        results["synthetic_rooms"] = synthetic_quality(out / "synth_rooms", config, style="train", layout="room",
+                                                       scenes=args.scenes, height=480, width=640)
         if not args.skip_real:
             results["dtu_pair"] = dtu_pair_quality(Path(__file__).resolve().parents[1] / "tests/data/dtu_pair",
                                                    out / "dtu_pair", config)
             results["temple"] = temple_quality(out / "temple", config=demo)
         results["wall_s"] = round(time.perf_counter() - t, 1)
-    for key in ("synthetic_train", "synthetic_heldout", "synthetic_train_windows", "synthetic_heldout_windows"):
+    for key in ("synthetic_train", "synthetic_heldout", "synthetic_train_windows", "synthetic_heldout_windows",
+                "synthetic_rooms"):
         r = results[key]
         print(f"{key:25s} within 1% of range {100 * r['within_1pct']:5.1f}%   within 10% of depth "
-              f"{100 * r['within_10pct_depth']:5.1f}%   accuracy "
+              f"{100 * r['within_10pct_depth']:5.1f}%   median AbsRel {r['median_abs_rel']:.3f}   accuracy "
               f"{_pct(r['accuracy_pct'])}   completeness {_pct(r['completeness_pct'])} of the scene depth")
     print("confidence calibration (training style, windows): share of pixels / within 1% of the range per bin")
     for row in results["synthetic_train_windows"]["confidence_calibration"]:

@@ -454,6 +454,8 @@ CASES: list[Case] = [
     Case("synth-views-1", "synth --views 1", lambda d: ["synth", str(d / "s"), "--views", "1"], "--views"),
     Case("synth-detail-classic", "synth --detail 0.5 with the classic style",
          lambda d: ["synth", str(d / "s"), "--detail", "0.5"], "--detail"),
+    Case("synth-layout-classic", "synth --layout room with the classic style",
+         lambda d: ["synth", str(d / "s"), "--layout", "room"], "--layout"),
     Case("synth-detail-nan", "synth --style train --detail nan",
          lambda d: ["synth", str(d / "s"), "--style", "train", "--detail", "nan"], "--detail"),
     Case("synth-objects-huge", "synth --objects 1000000000 (hung rendering)",

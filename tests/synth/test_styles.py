@@ -146,3 +146,27 @@ def test_streets_show_sky_and_scenes_hold_thin_structures():
                                                            layout="table").surfaces
             if isinstance(s.shape, Cylinder) and s.shape.radius < 0.013]
     assert len(thin) >= 4
+
+
+def test_a_layout_can_be_chosen_from_the_scene_writer_and_the_command(tmp_path, capsys):
+    """``layout`` reaches the training style from generate_scene and ``synth --layout``; other styles refuse it,
+    and the command's choices are the generator's layouts."""
+    import json
+
+    from mvsformerpp.cli import main
+    from mvsformerpp.cli.synth import LAYOUTS as CLI_LAYOUTS
+    from mvsformerpp.synth import generate_scene, random_scene
+
+    assert CLI_LAYOUTS == LAYOUTS
+    for seed in range(3):
+        assert random_scene(seed, 2, 24, 32, style="train", layout="room").meta["layout"] == "room"
+    scene = generate_scene(tmp_path / "lib", seed=7, num_views=2, height=24, width=32, style="train", layout="ring")
+    assert json.loads((scene / "scene.json").read_text())["layout"] == "ring"
+    with pytest.raises(ValueError, match="needs style 'train'"):
+        random_scene(0, 2, 24, 32, style="heldout", layout="room")
+    assert main(["synth", str(tmp_path / "cli"), "--style", "train", "--layout", "facade", "--views", "2",
+                 "--height", "32", "--width", "48", "--seed", "3"]) == 0
+    assert json.loads((tmp_path / "cli" / "scene.json").read_text())["layout"] == "facade"
+    assert main(["synth", str(tmp_path / "bad"), "--layout", "room"]) != 0
+    assert "--layout needs --style train" in capsys.readouterr().err
+    assert not (tmp_path / "bad").exists()

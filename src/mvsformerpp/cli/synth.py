@@ -7,6 +7,7 @@ import argparse
 MAX_SIZE = 8192  # pixels per side
 MAX_VIEWS = 1000
 MAX_OBJECTS = 200
+LAYOUTS = ("table", "ring", "room", "facade")  # mvsformerpp.synth.layouts.LAYOUTS, without importing it here
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -34,6 +35,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--detail", type=float, default=0.0, metavar="S",
                    help="train/heldout styles: strength in [0, 1] of fine surface detail below the scale of each "
                    "surface's texture (default 0: none), so magnified textures keep structure at the pixel scale")
+    p.add_argument("--layout", choices=LAYOUTS,
+                   help="train style: this kind of scene for every seed (default: drawn from the seed); room: a "
+                   "handheld camera walking through a furnished room, as indoor video is")
     p.set_defaults(func=run)
 
 
@@ -62,8 +66,11 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.detail <= 1.0 or (args.detail and args.style == "classic"):
         raise InputError(f"--detail needs --style train or heldout and a strength in [0, 1], got {args.detail:g} "
                          f"with --style {args.style}")
+    if args.layout is not None and args.style != "train":
+        raise InputError(f"--layout needs --style train (the {args.style} style has one layout), got --layout "
+                         f"{args.layout} with --style {args.style}")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
-              style=args.style, sensor_width=args.sensor_width, detail=args.detail)
+              style=args.style, sensor_width=args.sensor_width, detail=args.detail, layout=args.layout)
     with claim_output_folder(args.output, kind="synth", reuse=False):
         if args.scenes == 1:
             out = generate_scene(args.output, seed=args.seed, **kw)

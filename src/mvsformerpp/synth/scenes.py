@@ -14,7 +14,8 @@ STYLES = ("classic", "train", "heldout")
 
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
                  num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic",
-                 sensor_width: tuple[float, float] | None = None, detail: float = 0.0) -> SynthScene:
+                 sensor_width: tuple[float, float] | None = None, detail: float = 0.0,
+                 layout: str | None = None) -> SynthScene:
     """A random scene, deterministic for (seed, style, sizes).
 
     ``classic``: several objects of different shapes, sizes, depths and textures on a ground plane
@@ -26,12 +27,19 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
     ``sensor_width`` (``train`` and ``heldout``): the views are windows of larger photos whose width in
     pixels is drawn from this (low, high) range, as training crops of high-resolution photos are.
     ``detail`` (``train`` and ``heldout``): strength of the fine surface detail (:attr:`SynthScene.detail`).
+    ``layout`` (``train`` only): one of :data:`~mvsformerpp.synth.layouts.LAYOUTS` (table, ring, room,
+    facade) instead of the one the seed draws.
     """
+    if layout is not None and style != "train":
+        raise ValueError(f"layout {layout!r} needs style 'train' (the held-out and classic styles have one layout)")
     if style != "classic":
         if style not in STYLES:
             raise ValueError(f"unknown synthetic style {style!r}; choose one of {STYLES}")
-        build = training_scene if style == "train" else heldout_scene
-        scene = build(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
+        if style == "train":
+            scene = training_scene(seed, num_views, height, width, num_objects, layout=layout,
+                                   sensor_width=sensor_width)
+        else:
+            scene = heldout_scene(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
         if not 0.0 <= detail <= 1.0:
             raise ValueError(f"detail {detail} must lie in [0, 1] (0 = none)")
         scene.detail = float(detail)
