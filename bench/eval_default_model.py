@@ -28,9 +28,10 @@ from pathlib import Path
 def main() -> None:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG
     from mvsformerpp.pipelines.model_quality import (
-        WINDOWS,
+        SYNTHETIC_KINDS,
         calibrate_fusion_conf,
         dtu_pair_quality,
+        kind_name,
         synthetic_quality,
         temple_quality,
     )
@@ -62,11 +63,10 @@ def main() -> None:
             print(f"calibrated fusion thresholds: {confs}")
             config = dataclasses.replace(config, fusion_conf=confs["normal"])
             demo = dataclasses.replace(demo or DEMO_CONFIG, fusion_conf=confs["dynamic"])
-        for style in ("train", "heldout"):
-            results[f"synthetic_{style}"] = synthetic_quality(out / f"synth_{style}", config, style=style,
-                                                              scenes=args.scenes)
-            results[f"synthetic_{style}_windows"] = synthetic_quality(
-                out / f"synth_{style}_windows", config, style=style, scenes=args.scenes, sensor_width=WINDOWS)
+        for style, sensor_width in SYNTHETIC_KINDS:
+            name = kind_name(style, sensor_width)
+            results[f"synthetic_{name}"] = synthetic_quality(out / f"synth_{name}", config, style=style,
+                                                             scenes=args.scenes, sensor_width=sensor_width)
         # indoor video: rooms seen by a walking handheld camera, at a depth camera's 640x480
         results["synthetic_rooms"] = synthetic_quality(out / "synth_rooms", config, style="train", layout="room",
                                                        scenes=args.scenes, height=480, width=640)

@@ -33,12 +33,13 @@ CALIBRATION_SEED = 2_000_000
 WINDOWS = (400.0, 2400.0)
 """Sensor widths (pixels) of the photos whose windows make the ``windows`` kinds of synthetic views (the
 focal lengths of real cameras at their working size; :func:`~mvsformerpp.synth.generate_scene`)."""
-CALIBRATION_KINDS = (("train", None), ("heldout", None), ("train", WINDOWS), ("heldout", WINDOWS))
-"""The kinds of synthetic scenes (style, sensor widths) that :func:`calibrate_fusion_conf` fuses."""
+SYNTHETIC_KINDS = (("train", None), ("heldout", None), ("train", WINDOWS), ("heldout", WINDOWS))
+"""The kinds of synthetic scenes (style, sensor widths) the quality check measures and
+:func:`calibrate_fusion_conf` fuses; :func:`kind_name` names them."""
 CONF_GRID = tuple(round(0.05 * k, 2) for k in range(1, 15))
 """Confidence thresholds tried by :func:`calibrate_fusion_conf` (0.05 .. 0.7)."""
 F_SCORE_TIE = 0.01
-"""Relative F-score difference under which two thresholds count as equally good."""
+"""Relative F_beta difference under which two thresholds count as equally good."""
 FUSION_BETA = 0.5
 """The calibration scores clouds by F_beta with this beta: precision counts twice as much as recall, since
 a floating point spoils a real cloud more than a missing one (the synthetic scenes are cleaner than photos)."""
@@ -48,6 +49,11 @@ DARK = 20
 
 CONF_BINS = tuple(round(0.1 * k, 1) for k in range(11))
 """Edges of the confidence bins of :func:`synthetic_quality`'s calibration table."""
+
+
+def kind_name(style: str, sensor_width) -> str:
+    """``train``, ``heldout``, ``train_windows``, ``heldout_windows``: a kind of :data:`SYNTHETIC_KINDS`."""
+    return style if sensor_width is None else f"{style}_windows"
 
 
 def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str = "train", scenes: int = 4,
@@ -130,7 +136,7 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
 def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes: int = 4,
                           seed: int = CALIBRATION_SEED, methods=("normal", "dynamic", "gipuma"),
                           grid=CONF_GRID, tau_pct: float = 1.0, num_views: int = 5, height: int = 192,
-                          width: int = 256, kinds=CALIBRATION_KINDS, quiet: bool = True) -> dict:
+                          width: int = 256, kinds=SYNTHETIC_KINDS, quiet: bool = True) -> dict:
     """For each fusion method, the confidence threshold of ``grid`` whose fused clouds have the best mean
     F_beta (:data:`FUSION_BETA`) at ``tau_pct`` % of the mean scene depth, on ``scenes`` synthetic scenes
     (seeds ``seed ..``) of each of ``kinds`` ((style, sensor width range or None) pairs: by default the
@@ -142,7 +148,7 @@ def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes
     cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views),
                               fusion="none")
     for style, sensor_width in kinds:
-        name = style + ("" if sensor_width is None else "_windows")
+        name = kind_name(style, sensor_width)
         for k in range(scenes):
             scene_dir = generate_scene(out / f"{name}_scene_{k}", seed=seed + k, num_views=num_views, height=height,
                                        width=width, style=style, sensor_width=sensor_width)
