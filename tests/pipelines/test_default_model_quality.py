@@ -11,7 +11,8 @@ RELATIVE_TOLERANCE = 0.1
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("row", ["train", "heldout", "train_windows", "heldout_windows", "rooms"])
+@pytest.mark.parametrize("row", ["train", "heldout", "train_windows", "heldout_windows", "rooms",
+                                 "rooms_painted"])
 def test_shipped_weights_reach_the_stated_synthetic_quality(tmp_path, row):
     quality = shipped.shipped_record()["quality"]
     if f"synthetic_{row}" not in quality:
@@ -20,7 +21,7 @@ def test_shipped_weights_reach_the_stated_synthetic_quality(tmp_path, row):
     measured = synthetic_quality(tmp_path, ReconstructConfig(), style=stated["style"], scenes=stated["scenes"],
                                  seed=stated["first_seed"], num_views=stated["views"], height=stated["size"][0],
                                  width=stated["size"][1], sensor_width=stated.get("sensor_width"),
-                                 layout=stated.get("layout"))
+                                 layout=stated.get("layout"), plain_walls=stated.get("plain_walls", 0.0))
     assert measured["within_1pct"] >= stated["within_1pct"] * (1 - RELATIVE_TOLERANCE)
     if stated.get("within_10pct_depth") is not None:
         assert measured["within_10pct_depth"] >= stated["within_10pct_depth"] * (1 - RELATIVE_TOLERANCE)

@@ -170,3 +170,67 @@ def test_a_layout_can_be_chosen_from_the_scene_writer_and_the_command(tmp_path, 
     assert main(["synth", str(tmp_path / "bad"), "--layout", "room"]) != 0
     assert "--layout needs --style train" in capsys.readouterr().err
     assert not (tmp_path / "bad").exists()
+
+
+def _texture_contrast(scene, cam) -> tuple[np.ndarray, np.ndarray]:
+    """Per pixel: the index of the surface it sees, and the image's local contrast (3x3 std of the grey)."""
+    from scipy.ndimage import uniform_filter
+
+    H, W = scene.height, scene.width
+    v, u = np.mgrid[:H, :W]
+    dirs = np.stack([u + 0.5, v + 0.5, np.ones_like(u)], -1).reshape(-1, 3) @ np.linalg.inv(cam.K).T @ cam.R
+    _, which, _ = cast(scene, np.broadcast_to(cam.center, dirs.shape), dirs)
+    grey = render_view(scene, cam)[0].astype(float).mean(-1)
+    local_std = np.sqrt(np.maximum(uniform_filter(grey ** 2, 3) - uniform_filter(grey, 3) ** 2, 0))
+    return which.reshape(H, W), local_std
+
+
+def test_painted_walls_leave_nothing_to_match_and_the_rest_of_the_scene_as_it_was():
+    """``plain_walls`` paints walls and ceilings (rooms, tables) one colour; 0 gives the scenes as before,
+    and with 1 every other surface, camera and light stays the same."""
+    from mvsformerpp.synth.layouts import WALLS
+
+    for layout in ("room", "table"):
+        for seed in range(3):
+            before = training_scene(seed, num_views=2, height=48, width=64, layout=layout)
+            same = training_scene(seed, num_views=2, height=48, width=64, layout=layout, plain_walls=0.0)
+            painted = training_scene(seed, num_views=2, height=48, width=64, layout=layout, plain_walls=1.0)
+            np.testing.assert_array_equal(render_view(before, before.cameras[0])[0],
+                                          render_view(same, same.cameras[0])[0])
+            walls = range(len(painted.surfaces))[WALLS[layout]]
+            assert len(walls) == (5 if layout == "room" else 2)
+            for i, (a, b) in enumerate(zip(before.surfaces, painted.surfaces)):
+                assert type(a.shape) is type(b.shape)
+                if i in walls:
+                    assert b.texture == "flat" and np.ptp(b.colors, axis=0).max() < 0.05
+                    assert b.colors.min() > 0.5  # light paint
+                else:
+                    assert (a.texture, a.seed) == (b.texture, b.seed)
+            np.testing.assert_array_equal(before.cameras[1].R, painted.cameras[1].R)
+            np.testing.assert_array_equal(before.light, painted.light)
+    # in the photos (without sensor noise) a painted wall has far less local contrast than the same wall as drawn
+    scene = training_scene(1, num_views=2, height=96, width=128, layout="room", plain_walls=1.0)
+    drawn = training_scene(1, num_views=2, height=96, width=128, layout="room")
+    for cam in scene.cameras + drawn.cameras:
+        cam.noise = 0.0
+    which, contrast = _texture_contrast(scene, scene.cameras[0])
+    _, drawn_contrast = _texture_contrast(drawn, drawn.cameras[0])
+    on_walls = np.isin(which, np.arange(1, 6))
+    assert on_walls.mean() > 0.2
+    assert np.median(contrast[on_walls]) < 0.5 * np.median(drawn_contrast[on_walls])
+    with pytest.raises(ValueError, match="plain_walls"):
+        random_scene(0, 2, 24, 32, style="heldout", plain_walls=0.5)
+    with pytest.raises(ValueError, match="probability"):
+        training_scene(0, 2, 24, 32, plain_walls=1.5)
+
+
+def test_the_command_writes_rooms_with_painted_walls(tmp_path):
+    import json
+
+    from mvsformerpp.cli import main
+
+    assert main(["synth", str(tmp_path / "room"), "--style", "train", "--layout", "room", "--plain-walls", "1",
+                 "--views", "2", "--height", "32", "--width", "48", "--seed", "5"]) == 0
+    meta = json.loads((tmp_path / "room" / "scene.json").read_text())
+    assert meta["plain_walls"] == 1.0 and meta["layout"] == "room"
+    assert meta["surfaces"][1:6] == ["Plane:flat"] * 5

@@ -38,6 +38,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--layout", choices=LAYOUTS,
                    help="train style: this kind of scene for every seed (default: drawn from the seed); room: a "
                    "handheld camera walking through a furnished room, as indoor video is")
+    p.add_argument("--plain-walls", type=float, default=0.0, metavar="P",
+                   help="train style: probability in [0, 1] that each wall and ceiling of a room or table is painted "
+                   "one light colour, with no texture to match (most real rooms; default 0: as drawn)")
     p.set_defaults(func=run)
 
 
@@ -69,8 +72,12 @@ def run(args: argparse.Namespace) -> int:
     if args.layout is not None and args.style != "train":
         raise InputError(f"--layout needs --style train (the {args.style} style has one layout), got --layout "
                          f"{args.layout} with --style {args.style}")
+    if not 0.0 <= args.plain_walls <= 1.0 or (args.plain_walls and args.style != "train"):
+        raise InputError(f"--plain-walls needs --style train and a probability in [0, 1], got {args.plain_walls:g} "
+                         f"with --style {args.style}")
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
-              style=args.style, sensor_width=args.sensor_width, detail=args.detail, layout=args.layout)
+              style=args.style, sensor_width=args.sensor_width, detail=args.detail, layout=args.layout,
+              plain_walls=args.plain_walls)
     with claim_output_folder(args.output, kind="synth", reuse=False):
         if args.scenes == 1:
             out = generate_scene(args.output, seed=args.seed, **kw)

@@ -59,10 +59,11 @@ def kind_name(style: str, sensor_width) -> str:
 def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str = "train", scenes: int = 4,
                       seed: int = HELDOUT_SEED, num_views: int = 5, height: int = 192, width: int = 256,
                       quiet: bool = True, sensor_width: tuple[float, float] | None = None,
-                      layout: str | None = None) -> dict:
+                      layout: str | None = None, plain_walls: float = 0.0) -> dict:
     """Depth and cloud quality on ``scenes`` synthetic scenes of ``style`` (module docstring); with
     ``sensor_width`` the views are windows of photos that wide (real cameras' focal lengths); ``layout``
-    (training style): only scenes of that layout (``room``: indoor video from a handheld camera). Besides
+    (training style): only scenes of that layout (``room``: indoor video from a handheld camera);
+    ``plain_walls`` (training style): the share of walls and ceilings painted one colour. Besides
     the shares within 1 % of the range and 10 % of the depth, the median over the valid pixels of the
     relative error |d - d*| / d* (``median_abs_rel``, as indoor benchmarks report it).
 
@@ -81,7 +82,8 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
     bin_pixels, bin_within = np.zeros(bins, np.int64), np.zeros(bins, np.int64)
     for k in range(scenes):
         scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
-                                   width=width, style=style, sensor_width=sensor_width, layout=layout)
+                                   width=width, style=style, sensor_width=sensor_width, layout=layout,
+                                   plain_walls=plain_walls)
         rec = out / f"recon_{k}"
         cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views))
         reconstruct(scene_dir, rec, cfg, quiet=quiet)
@@ -126,7 +128,8 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
                    for b in range(bins)]
     return {"style": style, "scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
             "sensor_width": None if sensor_width is None else list(sensor_width),
-            "layout": layout, "within_1pct": within / total, "within_10pct_depth": within10 / total,
+            "layout": layout, "plain_walls": plain_walls, "within_1pct": within / total,
+            "within_10pct_depth": within10 / total,
             "median_abs_rel": float(np.median(np.concatenate(all_rel))), "confidence_calibration": calibration,
             "accuracy_pct": float(np.mean(acc)) if acc else None,
             "completeness_pct": float(np.mean(comp)) if comp else None,

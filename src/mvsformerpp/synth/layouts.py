@@ -15,9 +15,10 @@ Tables, rooms and streets also hold a few thin upright structures (rods, stands,
 wide, an occlusion boundary on each side).
 
 Surfaces get natural-image textures (:mod:`mvsformerpp.synth.photos`), procedural ones, or nearly
-none; some are glossy (a view-dependent highlight). Every view has its own exposure and white
-balance, a lens blur (sometimes defocus) and sensor noise; fields of view of 45-75 degrees,
-slightly off-centre principal points and small camera roll.
+none (``plain_walls``: the share of the walls and ceilings of rooms and tables that are painted one
+light colour, as most real rooms' are); some are glossy (a view-dependent highlight). Every view has
+its own exposure and white balance, a lens blur (sometimes defocus) and sensor noise; fields of view of
+45-75 degrees, slightly off-centre principal points and small camera roll.
 
 ``heldout_scene`` is a style the training scenes never contain: tilted ellipsoids, boxes and panels
 floating inside a textured dome, textured with procedural images from other seeds, seen from a
@@ -35,6 +36,10 @@ from mvsformerpp.synth.shapes import Box, Cylinder, Ellipsoid, Plane, Rect, Sphe
 LAYOUTS = ("table", "ring", "room", "facade")
 LAYOUT_WEIGHTS = (0.3, 0.2, 0.25, 0.25)
 SOLID = ("noise", "checker", "stripes", "marble")
+
+
+WALLS = {"room": slice(1, 6), "table": slice(2, 4)}
+"""Where the walls (and a room's ceiling) sit in the surface lists of the layouts that have them."""
 
 
 # ----------------------------------------------------------------------------------------- materials
@@ -199,6 +204,15 @@ def _cameras(rng: np.random.Generator, K: np.ndarray, centers: list, targets: li
         cams.append(Camera(K.copy(), R, t, gain=gain, blur=blur, noise=noise * rng.uniform(0.5, 1.5),
                            noise_seed=int(rng.integers(1 << 30))))
     return cams
+
+
+def _paint(rng: np.random.Generator, surf: Surface) -> None:
+    """Paint ``surf`` one light, slightly tinted colour: only the shading varies over it (no texture to
+    match), sometimes with a faint sheen, as painted plaster."""
+    c = rng.uniform(0.55, 0.95) * (1 + rng.uniform(-0.06, 0.06, 3))
+    surf.texture, surf.colors, surf.photo = "flat", np.stack([c, c * rng.uniform(0.97, 1.0)]), 0
+    surf.specular = rng.uniform(0.03, 0.12) if rng.random() < 0.3 else 0.0
+    surf.shininess = rng.uniform(4, 16)
 
 
 def _ring(rng, n: int, target: np.ndarray, radius: float, elevation_deg: float, step_deg: float, jitter: float):
@@ -388,12 +402,16 @@ def _sky(extra: np.random.Generator) -> Sky:
 
 def training_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
                    num_objects: int | None = None, layout: str | None = None,
-                   sensor_width: tuple[float, float] | None = None) -> SynthScene:
+                   sensor_width: tuple[float, float] | None = None, plain_walls: float = 0.0) -> SynthScene:
     """A random scene of one of :data:`LAYOUTS` (``layout`` None = drawn from the seed).
 
     ``sensor_width`` (low, high): the views are ``width`` x ``height`` windows of photos whose width is
     drawn from this range (see :func:`_cut_windows`); None: each view is a whole photo of that size.
+    ``plain_walls``: probability that each wall and ceiling of a ``room`` or ``table`` layout is painted
+    one light colour (:func:`_paint`); 0 leaves every scene as it was.
     """
+    if not 0.0 <= plain_walls <= 1.0:
+        raise ValueError(f"plain_walls is a probability in [0, 1], got {plain_walls}")
     rng = np.random.default_rng([seed, 11])
     extra = np.random.default_rng([seed, 31])  # the later additions draw apart: the scenes before them stay
     kind = layout if layout is not None else str(rng.choice(LAYOUTS, p=LAYOUT_WEIGHTS))
@@ -410,6 +428,11 @@ def training_scene(seed: int, num_views: int = 7, height: int = 256, width: int 
         surfaces, centers, targets = _room(rng, num_views, K, num_objects, extra)
     else:
         surfaces, centers, targets = _facade(rng, num_views, K, num_objects, extra)
+    if plain_walls > 0 and kind in WALLS:
+        paint = np.random.default_rng([seed, 47])  # its own stream: the rest of the scene stays as it was
+        for surf in surfaces[WALLS[kind]]:
+            if paint.random() < plain_walls:
+                _paint(paint, surf)
     cams = _cameras(rng, K, centers, targets, roll_deg=2.0 if kind in ("room", "facade") else 1.0)
     light = rng.normal(0, 1, 3) + np.array([0, 0, 1.5])
     scene = SynthScene(surfaces, cams, width, height, {"seed": seed, "style": "train", "layout": kind},

@@ -15,7 +15,7 @@ STYLES = ("classic", "train", "heldout")
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
                  num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic",
                  sensor_width: tuple[float, float] | None = None, detail: float = 0.0,
-                 layout: str | None = None) -> SynthScene:
+                 layout: str | None = None, plain_walls: float = 0.0) -> SynthScene:
     """A random scene, deterministic for (seed, style, sizes).
 
     ``classic``: several objects of different shapes, sizes, depths and textures on a ground plane
@@ -29,15 +29,20 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
     ``detail`` (``train`` and ``heldout``): strength of the fine surface detail (:attr:`SynthScene.detail`).
     ``layout`` (``train`` only): one of :data:`~mvsformerpp.synth.layouts.LAYOUTS` (table, ring, room,
     facade) instead of the one the seed draws.
+    ``plain_walls`` (``train`` only): probability that each wall and ceiling of a room or table is painted
+    one light colour (large surfaces with no texture to match, as in most real rooms; 0: as drawn).
     """
     if layout is not None and style != "train":
         raise ValueError(f"layout {layout!r} needs style 'train' (the held-out and classic styles have one layout)")
+    if plain_walls and style != "train":
+        raise ValueError(f"plain_walls needs style 'train' (the held-out and classic styles have no walls), "
+                         f"got style {style!r}")
     if style != "classic":
         if style not in STYLES:
             raise ValueError(f"unknown synthetic style {style!r}; choose one of {STYLES}")
         if style == "train":
             scene = training_scene(seed, num_views, height, width, num_objects, layout=layout,
-                                   sensor_width=sensor_width)
+                                   sensor_width=sensor_width, plain_walls=plain_walls)
         else:
             scene = heldout_scene(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
         if not 0.0 <= detail <= 1.0:
