@@ -2,6 +2,7 @@
 
 import pytest
 
+from mvsformerpp.errors import InputError
 from mvsformerpp.models import shipped
 from mvsformerpp.pipelines.model_quality import synthetic_quality
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig
@@ -29,3 +30,18 @@ def test_shipped_weights_reach_the_stated_synthetic_quality(tmp_path, row):
     for key in ("median_abs_rel", "accuracy_pct", "completeness_pct"):
         if stated.get(key) is not None:
             assert measured[key] is not None and measured[key] <= stated[key] * (1 + RELATIVE_TOLERANCE)
+
+
+def test_the_prepare_hook_changes_each_scene_before_it_is_reconstructed(tmp_path):
+    calls = []
+
+    def prepare(scene_dir):
+        k = scene_dir.name.split("_")[-1]
+        assert (scene_dir / "images" / "00000000.png").is_file() and not (tmp_path / f"recon_{k}").exists()
+        calls.append(scene_dir.name)
+        (scene_dir / "images" / "00000001.png").unlink()  # what reconstruct sees is what prepare left
+
+    with pytest.raises(InputError, match="no image for camera 00000001"):
+        synthetic_quality(tmp_path, ReconstructConfig(), scenes=2, num_views=3, height=48, width=64,
+                          prepare=prepare)
+    assert calls == ["scene_0"]

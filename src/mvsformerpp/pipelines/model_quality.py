@@ -20,6 +20,7 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -59,11 +60,14 @@ def kind_name(style: str, sensor_width) -> str:
 def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str = "train", scenes: int = 4,
                       seed: int = HELDOUT_SEED, num_views: int = 5, height: int = 192, width: int = 256,
                       quiet: bool = True, sensor_width: tuple[float, float] | None = None,
-                      layout: str | None = None, plain_walls: float = 0.0) -> dict:
+                      layout: str | None = None, plain_walls: float = 0.0,
+                      prepare: Callable[[Path], None] | None = None) -> dict:
     """Depth and cloud quality on ``scenes`` synthetic scenes of ``style`` (module docstring); with
     ``sensor_width`` the views are windows of photos that wide (real cameras' focal lengths); ``layout``
     (training style): only scenes of that layout (``room``: indoor video from a handheld camera);
-    ``plain_walls`` (training style): the share of walls and ceilings painted one colour. Besides
+    ``plain_walls`` (training style): the share of walls and ceilings painted one colour; ``prepare``:
+    called with each scene's folder before it is reconstructed (to degrade its photos or change its cam
+    files as real captures differ: ``bench/degradations.py``; the truth stays as rendered). Besides
     the shares within 1 % of the range and 10 % of the depth, the median over the valid pixels of the
     relative error |d - d*| / d* (``median_abs_rel``, as indoor benchmarks report it).
 
@@ -84,6 +88,8 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
         scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
                                    width=width, style=style, sensor_width=sensor_width, layout=layout,
                                    plain_walls=plain_walls)
+        if prepare is not None:
+            prepare(scene_dir)
         rec = out / f"recon_{k}"
         cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views))
         reconstruct(scene_dir, rec, cfg, quiet=quiet)
