@@ -15,8 +15,9 @@ condition changes what a real capture changes and nothing else; the ground truth
 * ``painted``: every wall and ceiling painted one colour (large surfaces with nothing to match).
 
 Per condition: the share of valid pixels within 10 % of the true depth, the median AbsRel, the share
-within 1 % of the true depth range, and the within-10 % share split into flat pixels (the photo's 9x9
-standard deviation under 3/255: nothing to match) and the rest, with the flat pixels' share.
+within 1 % of the cam files' depth range (the widened one in the range conditions), and the within-10 %
+share split into flat pixels (the photo's 9x9 standard deviation under 3/255: nothing to match) and the
+rest, with the flat pixels' share.
 
     PYTHONPATH=src python bench/degradations.py [--scenes 4] [--only jpeg painted ...] [--checkpoint PATH]
                                                 [--size 480 640] [--json PATH]
