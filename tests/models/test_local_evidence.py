@@ -64,3 +64,37 @@ def test_the_paper_network_keeps_the_reference_stage1_and_lite_uses_the_evidence
     # it changes no weight: checkpoints of either setting fit the same preset
     assert architecture(lite) == architecture(get_config("lite", local_evidence=0.0))
     assert build_model("lite").fusions[0].cost_reg.local_weight == lite.local_evidence
+
+
+def test_the_gate_silences_cells_whose_window_matches_nothing_distinctly():
+    torch.manual_seed(0)
+    ungated = CostVolumeTransformer(8, mid_ch=16, num_heads=2, num_layers=1, local_weight=2.0, local_box=5).eval()
+    gated = CostVolumeTransformer(8, mid_ch=16, num_heads=2, num_layers=1, local_weight=2.0, local_box=5,
+                                  local_gate=(1.5, 2.2)).eval()
+    plain = CostVolumeTransformer(8, mid_ch=16, num_heads=2, num_layers=1).eval()
+    for m in (gated, plain):
+        m.load_state_dict(ungated.state_dict())
+    volume, _ = _noisy_volume(H=16, W=32, noise=0.3)
+    # right half: a painted wall, whose correlation varies only slowly over the hypotheses (one period of a
+    # sine: z_max = sqrt(2)) with no distinct peak
+    wall = torch.sin(torch.arange(32) / 32 * 2 * torch.pi)[None, None, :, None, None]
+    volume[..., 16:] = wall + 0.01 * torch.randn_like(volume[..., 16:])
+    with torch.no_grad():
+        ev = local_evidence(volume, 5)
+        z_max = ev.amax(2)[:, 0]
+        a, g, p = ungated(volume), gated(volume), plain(volume)
+    # where the window holds a distinct peak the gate is open: the full evidence, as ungated
+    sharp = z_max >= 2.2
+    assert sharp[..., :12].float().mean() > 0.9
+    torch.testing.assert_close((g - a)[:, 0].permute(0, 2, 3, 1)[sharp], torch.zeros_like(
+        (g - a)[:, 0].permute(0, 2, 3, 1)[sharp]), rtol=0, atol=1e-4)
+    # where it holds only noise (z_max below a) the evidence is gone: the transformer alone
+    flat = z_max <= 1.5
+    assert flat[..., 19:].all()
+    diff = (g - p)[:, 0].permute(0, 2, 3, 1)[flat]
+    torch.testing.assert_close(diff, torch.zeros_like(diff), rtol=0, atol=1e-4)
+    with pytest.raises(ValueError, match="two numbers a < b"):
+        CostVolumeTransformer(8, local_weight=2.0, local_gate=(2.0, 1.0))
+    cfg = get_config("lite", local_evidence_gate=(1.5, 2.2))
+    assert build_model("lite", local_evidence_gate=(1.5, 2.2)).fusions[0].cost_reg.local_gate == (1.5, 2.2)
+    assert architecture(cfg) == architecture(get_config("lite"))

@@ -45,6 +45,10 @@ class ModelConfig:
     the cost-volume transformer's logits; 0: the reference's stage 1 (no weights depend on it)."""
     local_evidence_box: int = 9
     """Side, in stage-1 cells (8 photo pixels), of the square window that aggregates that evidence."""
+    local_evidence_gate: tuple[float, float] | None = None
+    """(a, b): each cell's evidence is scaled by clip((z_max - a) / (b - a), 0, 1), z_max its largest
+    standardised value over the hypotheses, so that a window that matches nothing distinctly (a painted
+    wall) adds nothing; None: ungated. Measured, not yet the default: docs/model-card.md, "Painted walls"."""
     temperatures: tuple[float, float, float, float] = (5.0, 5.0, 5.0, 1.0)
     """Inference temperature per stage."""
     loss_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
@@ -87,7 +91,7 @@ def get_config(preset: str = "paper", **overrides) -> ModelConfig:
 
 # Fields that change only how a network runs or trains, not which weights fit it.
 _NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", "local_evidence",
-                     "local_evidence_box")
+                     "local_evidence_box", "local_evidence_gate")
 
 
 def architecture(config: ModelConfig) -> dict:

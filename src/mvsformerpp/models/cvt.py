@@ -125,10 +125,13 @@ class CostVolumeTransformer(nn.Module):
 
     def __init__(self, in_ch: int = 8, mid_ch: int = 64, num_heads: int = 4, num_layers: int = 6,
                  patch=(2, 4, 4), mlp_ratio: float = 4.0, train_avg_tokens: int = TRAIN_AVG_TOKENS,
-                 local_weight: float = 0.0, local_box: int = 9):
+                 local_weight: float = 0.0, local_box: int = 9, local_gate: tuple[float, float] | None = None):
         super().__init__()
         if local_box < 1 or local_box % 2 == 0:
             raise ValueError(f"local_evidence_box must be an odd number of cells >= 1, got {local_box}")
+        if local_gate is not None and not (len(local_gate) == 2 and local_gate[0] < local_gate[1]):
+            raise ValueError(f"local_evidence_gate must be two numbers a < b, got {local_gate}")
+        self.local_gate = None if local_gate is None else (float(local_gate[0]), float(local_gate[1]))
         self.in_ch = in_ch
         self.local_weight, self.local_box = float(local_weight), int(local_box)
         self.pe_proj = nn.Conv3d(in_ch * 3, in_ch, 1, bias=False)
@@ -141,6 +144,9 @@ class CostVolumeTransformer(nn.Module):
 
     def forward(self, volume: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
         evidence = local_evidence(volume, self.local_box) if self.local_weight else None
+        if evidence is not None and self.local_gate is not None:
+            a, b = self.local_gate
+            evidence = evidence * ((evidence.amax(2, keepdim=True) - a) / (b - a)).clamp_(0, 1)
         if coords is not None:
             volume = volume + self.pe_proj(sine_encoding_3d(coords, self.in_ch))
         x = self.down(volume)
