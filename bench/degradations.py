@@ -42,7 +42,10 @@ FLAT_STD = 3.0 / 255.0
 
 
 def _load(path: Path) -> np.ndarray:
-    return np.asarray(Image.open(path).convert("RGB"), np.float32) / 255.0
+    """A photo as float RGB in 0..1 (the package's image reader)."""
+    from mvsformerpp.io.images import read_image
+
+    return read_image(path).astype(np.float32) / 255.0
 
 
 def _save(path: Path, img: np.ndarray, jpeg: int | None = None) -> None:
