@@ -303,7 +303,9 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
     for s in range(1, 5):
         a, b = fast[f"stage{s}"]["prob_volume_pre"], plain[f"stage{s}"]["prob_volume_pre"]
         assert torch.allclose(a, b, rtol=1e-4, atol=1e-4 * b.abs().max().item()), s
-    assert torch.allclose(fast["depth"], plain["depth"], rtol=1e-5)
+    # the depth to the logits' tolerance: stage 1's gated evidence standardises near-flat windows, which
+    # turns the paths' float rounding (1e-6) into up to 1.4e-5 of the depth on random weights
+    assert torch.allclose(fast["depth"], plain["depth"], rtol=1e-4)
     assert torch.allclose(fast["photometric_confidence"], plain["photometric_confidence"], atol=1e-5)
 
 

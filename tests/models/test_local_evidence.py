@@ -95,6 +95,9 @@ def test_the_gate_silences_cells_whose_window_matches_nothing_distinctly():
     torch.testing.assert_close(diff, torch.zeros_like(diff), rtol=0, atol=1e-4)
     with pytest.raises(ValueError, match="two numbers a < b"):
         CostVolumeTransformer(8, local_weight=2.0, local_gate=(2.0, 1.0))
-    cfg = get_config("lite", local_evidence_gate=(1.5, 2.2))
-    assert build_model("lite", local_evidence_gate=(1.5, 2.2)).fusions[0].cost_reg.local_gate == (1.5, 2.2)
-    assert architecture(cfg) == architecture(get_config("lite"))
+    # lite gates its evidence; the gate changes no weight, and None turns it off
+    lite = get_config("lite")
+    assert lite.local_evidence_gate is not None
+    assert build_model("lite").fusions[0].cost_reg.local_gate == tuple(lite.local_evidence_gate)
+    assert build_model("lite", local_evidence_gate=None).fusions[0].cost_reg.local_gate is None
+    assert architecture(lite) == architecture(get_config("lite", local_evidence_gate=None))

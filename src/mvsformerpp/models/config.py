@@ -48,7 +48,8 @@ class ModelConfig:
     local_evidence_gate: tuple[float, float] | None = None
     """(a, b): each cell's evidence is scaled by clip((z_max - a) / (b - a), 0, 1), z_max its largest
     standardised value over the hypotheses, so that a window that matches nothing distinctly (a painted
-    wall) adds nothing; None: ungated. Measured, not yet the default: docs/model-card.md, "Painted walls"."""
+    wall) adds nothing; None: ungated (bounds chosen on painted walls, the DTU pair and the calibration scenes:
+    docs/model-card.md, "Painted walls")."""
     temperatures: tuple[float, float, float, float] = (5.0, 5.0, 5.0, 1.0)
     """Inference temperature per stage."""
     loss_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
@@ -77,9 +78,10 @@ PRESETS: dict[str, ModelConfig] = {
     "paper_finetune": ModelConfig(loss_weights=(0.0, 0.0, 0.0, 1.0)),
     # Same architecture, much smaller ViT and SVA, trainable backbone (no pretrained weights exist).
     # Stage 1 adds the cost volume's own window-aggregated evidence to its transformer's logits (weight and
-    # window chosen on synthetic calibration scenes: docs/model-card.md, "Stage 1's local evidence").
+    # window chosen on synthetic calibration scenes: docs/model-card.md, "Stage 1's local evidence"), gated
+    # by its own peak so that windows with nothing to match (painted walls) add nothing ("Painted walls").
     "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2,
-                        local_evidence=2.0, local_evidence_box=13),
+                        local_evidence=2.0, local_evidence_box=13, local_evidence_gate=(1.5, 2.2)),
 }
 
 
