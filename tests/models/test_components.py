@@ -239,6 +239,25 @@ def test_bf16_autocast_keeps_fp32_islands_and_close_results():
     assert rel.median() < 1e-3 and rel.max() < 0.05
 
 
+def test_the_cost_volume_transformer_runs_in_fp32_under_cpu_bf16_autocast():
+    """On the CPU the stage-1 transformer ignores bf16 autocast (its attention is no faster in bf16):
+    the same fp32 logits, bit for bit, with or without it; the blocks around it still run in bf16."""
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    torch.manual_seed(0)
+    cvt = CostVolumeTransformer(8, mid_ch=16, num_heads=2, num_layers=1, local_weight=2.0, local_box=5,
+                                local_gate=(1.5, 2.2)).eval()
+    volume, coords = torch.randn(1, 8, 8, 16, 24), torch.rand(1, 3, 8, 16, 24)
+    with torch.no_grad():
+        ref, rounded = cvt(volume, coords), cvt(volume.bfloat16().float(), coords)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = cvt(volume.bfloat16(), coords)
+            assert cvt.prob(volume).dtype == torch.bfloat16  # the autocast is on outside the block
+    assert out.dtype == torch.float32
+    torch.testing.assert_close(out, rounded, rtol=0, atol=0)
+    assert (out - ref).abs().max() < 0.05 * ref.abs().max()  # only the input's rounding differs
+
+
 def _randomise_batchnorm(model, seed=5):
     """Non-trivial eval statistics, so that folding BatchNorm into convolutions is really exercised."""
     g = torch.Generator().manual_seed(seed)

@@ -17,6 +17,13 @@ from mvsformerpp.models.layers import LayerNorm3D, gelu_
 TRAIN_AVG_TOKENS = 12185
 
 
+def _cpu_autocast_enabled() -> bool:
+    try:
+        return torch.is_autocast_enabled("cpu")
+    except TypeError:  # torch < 2.4
+        return torch.is_autocast_cpu_enabled()
+
+
 def adaptive_attention_scale(head_dim: int, num_tokens: int, train_avg_tokens: int = TRAIN_AVG_TOKENS) -> float:
     """AAS: head_dim^-0.5 * log_{n_train}(L), keeping attention entropy stable across resolutions."""
     return head_dim ** -0.5 * math.log(num_tokens) / math.log(train_avg_tokens)
@@ -143,6 +150,14 @@ class CostVolumeTransformer(nn.Module):
         self.prob = nn.Conv3d(in_ch, 1, 1)
 
     def forward(self, volume: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
+        if volume.device.type == "cpu" and _cpu_autocast_enabled():
+            # PyTorch's CPU attention has no faster kernel in bf16 (the block runs 15 % slower in it):
+            # on the CPU this block runs in fp32 whatever the autocast; on GPUs it follows it
+            with torch.autocast("cpu", enabled=False):
+                return self._forward(volume.float(), None if coords is None else coords.float())
+        return self._forward(volume, coords)
+
+    def _forward(self, volume: torch.Tensor, coords: torch.Tensor | None) -> torch.Tensor:
         evidence = local_evidence(volume, self.local_box) if self.local_weight else None
         if evidence is not None and self.local_gate is not None:
             a, b = self.local_gate
