@@ -12,16 +12,10 @@ from torch import nn
 
 from mvsformerpp.models.attention import softmax_attention
 from mvsformerpp.models.layers import LayerNorm3D, gelu_
+from mvsformerpp.utils.precision import autocast_enabled
 
 # Mean stage-1 token count over the reference's 25 training scales; the reference truncates 12185.6.
 TRAIN_AVG_TOKENS = 12185
-
-
-def _cpu_autocast_enabled() -> bool:
-    try:
-        return torch.is_autocast_enabled("cpu")
-    except TypeError:  # torch < 2.4
-        return torch.is_autocast_cpu_enabled()
 
 
 def adaptive_attention_scale(head_dim: int, num_tokens: int, train_avg_tokens: int = TRAIN_AVG_TOKENS) -> float:
@@ -150,7 +144,7 @@ class CostVolumeTransformer(nn.Module):
         self.prob = nn.Conv3d(in_ch, 1, 1)
 
     def forward(self, volume: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
-        if volume.device.type == "cpu" and _cpu_autocast_enabled():
+        if volume.device.type == "cpu" and autocast_enabled("cpu"):
             # PyTorch's CPU attention has no faster kernel in bf16 (the block runs 15 % slower in it):
             # on the CPU this block runs in fp32 whatever the autocast; on GPUs it follows it
             with torch.autocast("cpu", enabled=False):

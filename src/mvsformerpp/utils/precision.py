@@ -23,3 +23,11 @@ def autocast(device: str | torch.device, precision: str) -> contextlib.AbstractC
     if dtype is None:
         return contextlib.nullcontext()
     return torch.autocast(device_type=torch.device(device).type, dtype=dtype)
+
+
+def autocast_enabled(device_type: str) -> bool:
+    """Whether an autocast is active for ``device_type`` ("cpu", "cuda") where this is called."""
+    try:
+        return torch.is_autocast_enabled(device_type)
+    except TypeError:  # torch < 2.4 takes no device type
+        return torch.is_autocast_cpu_enabled() if device_type == "cpu" else torch.is_autocast_enabled()
