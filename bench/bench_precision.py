@@ -26,18 +26,10 @@ from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 from mvsformerpp.synth import generate_scene
 from mvsformerpp.utils.atomic import atomic_write_text
+from mvsformerpp.utils.precision import cpu_bf16_flags
 
 PRECISIONS = ("fp32", "bf16")
 FIRST_SEED = 5_000_000  # the quality bench's seeds: no training run uses them
-
-
-def _cpu_flags() -> str:
-    try:
-        text = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return "unknown"
-    flags = {f for f in ("avx512_bf16", "amx_bf16") if f in text}
-    return ", ".join(sorted(flags)) or "none"
 
 
 def scene_row(scene: Path, work: Path, rounds: int) -> dict:
@@ -80,7 +72,7 @@ def main() -> None:
                                    width=a.size[1], style="train")
             rows.append(scene_row(Path(scene), work, a.rounds))
     print(f"reconstruct, shipped weights, 5 views at {a.size[1]}x{a.size[0]}, best of {a.rounds}; "
-          f"{platform.processor() or platform.machine()}, native bf16: {_cpu_flags()}")
+          f"{platform.processor() or platform.machine()}, native bf16: {', '.join(sorted(cpu_bf16_flags())) or 'none'}")
     print(f"{'scene':10s} {'fp32 s':>8s} {'bf16 s':>8s} {'speed-up':>9s} {'fp32 <1%':>9s} {'bf16 <1%':>9s} "
           f"{'|bf16-fp32| median':>19s} {'p99':>8s}")
     for r in rows:

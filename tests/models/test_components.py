@@ -239,11 +239,13 @@ def test_bf16_autocast_keeps_fp32_islands_and_close_results():
     assert rel.median() < 1e-3 and rel.max() < 0.05
 
 
-def test_the_cost_volume_transformer_runs_in_fp32_under_cpu_bf16_autocast():
-    """On the CPU the stage-1 transformer ignores bf16 autocast (its attention is no faster in bf16):
-    the same fp32 logits, bit for bit, with or without it; the blocks around it still run in bf16."""
+def test_the_cost_volume_transformer_runs_in_fp32_under_cpu_bf16_autocast_without_amx(monkeypatch):
+    """On a CPU without AMX the stage-1 transformer ignores bf16 autocast (its attention is no faster in
+    bf16): the same fp32 logits, bit for bit, with or without it; the blocks around it still run in bf16."""
+    from mvsformerpp.models import cvt as cvt_module
     from mvsformerpp.models.cvt import CostVolumeTransformer
 
+    monkeypatch.setattr(cvt_module, "cpu_attention_in_bf16", lambda: False)
     torch.manual_seed(0)
     cvt = CostVolumeTransformer(8, mid_ch=16, num_heads=2, num_layers=1, local_weight=2.0, local_box=5,
                                 local_gate=(1.5, 2.2)).eval()
@@ -256,6 +258,44 @@ def test_the_cost_volume_transformer_runs_in_fp32_under_cpu_bf16_autocast():
     assert out.dtype == torch.float32
     torch.testing.assert_close(out, rounded, rtol=0, atol=0)
     assert (out - ref).abs().max() < 0.05 * ref.abs().max()  # only the input's rounding differs
+
+
+def test_the_cost_volume_transformer_follows_cpu_bf16_autocast_with_amx(monkeypatch):
+    """With AMX (bf16 attention faster than fp32) the block runs in bf16 like its neighbours: bf16 logits,
+    within bf16's rounding of the fp32 ones."""
+    from mvsformerpp.models import cvt as cvt_module
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    monkeypatch.setattr(cvt_module, "cpu_attention_in_bf16", lambda: True)
+    torch.manual_seed(0)
+    cvt = CostVolumeTransformer(8, mid_ch=16, num_heads=2, num_layers=1).eval()
+    volume, coords = torch.randn(1, 8, 8, 16, 24), torch.rand(1, 3, 8, 16, 24)
+    with torch.no_grad():
+        ref = cvt(volume, coords)
+        with torch.autocast("cpu", dtype=torch.bfloat16):
+            out = cvt(volume.bfloat16(), coords)
+    assert out.dtype == torch.bfloat16
+    assert (out.float() - ref).abs().max() < 0.05 * ref.abs().max()
+    assert (out.float() - ref).abs().max() > 0  # it really ran in bf16
+
+
+def test_cpu_bf16_flags_read_the_cpuinfo_flags(monkeypatch):
+    from pathlib import Path
+
+    from mvsformerpp.utils import precision
+
+    def fake(text):
+        monkeypatch.setattr(Path, "read_text", lambda self, *a, **k: text)
+        precision.cpu_bf16_flags.cache_clear()
+        return precision.cpu_bf16_flags(), precision.cpu_attention_in_bf16()
+
+    try:
+        assert fake("flags\t\t: fpu avx512f avx512_bf16 amx_bf16 amx_tile\n") == ({"avx512_bf16", "amx_bf16"}, True)
+        assert fake("flags\t\t: fpu avx512f avx512_bf16 avx512_vnni\n") == ({"avx512_bf16"}, False)
+        assert fake("flags\t\t: fpu sse avx2 amx_bf16x\n") == (set(), False)  # whole words only
+    finally:
+        monkeypatch.undo()
+        precision.cpu_bf16_flags.cache_clear()
 
 
 def _randomise_batchnorm(model, seed=5):

@@ -12,7 +12,7 @@ from torch import nn
 
 from mvsformerpp.models.attention import softmax_attention
 from mvsformerpp.models.layers import LayerNorm3D, gelu_
-from mvsformerpp.utils.precision import autocast_enabled
+from mvsformerpp.utils.precision import autocast_enabled, cpu_attention_in_bf16
 
 # Mean stage-1 token count over the reference's 25 training scales; the reference truncates 12185.6.
 TRAIN_AVG_TOKENS = 12185
@@ -144,9 +144,9 @@ class CostVolumeTransformer(nn.Module):
         self.prob = nn.Conv3d(in_ch, 1, 1)
 
     def forward(self, volume: torch.Tensor, coords: torch.Tensor | None = None) -> torch.Tensor:
-        if volume.device.type == "cpu" and autocast_enabled("cpu"):
-            # PyTorch's CPU attention has no faster kernel in bf16 (the block runs 15 % slower in it):
-            # on the CPU this block runs in fp32 whatever the autocast; on GPUs it follows it
+        if volume.device.type == "cpu" and autocast_enabled("cpu") and not cpu_attention_in_bf16():
+            # without AMX, PyTorch's CPU attention has no faster kernel in bf16 (the block runs 15 % slower
+            # in it): there this block runs in fp32 whatever the autocast; with AMX and on GPUs it follows it
             with torch.autocast("cpu", enabled=False):
                 return self._forward(volume.float(), None if coords is None else coords.float())
         return self._forward(volume, coords)
