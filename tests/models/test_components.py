@@ -387,6 +387,35 @@ def test_banded_decoder_level_matches_upsample_then_convolve(monkeypatch):
             assert torch.allclose(out, ref, atol=1e-5), rows
 
 
+def test_the_lean_plain_decoder_runs_channels_last_with_the_same_numbers(monkeypatch):
+    """Without autograd and in eval mode the plain FPN decoder runs its modules in channels-last memory
+    (oneDNN's thin full-resolution convolutions are faster there) and returns contiguous NCHW maps equal
+    to those of the same modules with autograd on, at every level count."""
+    from mvsformerpp.models import fpn, prepared
+
+    torch.manual_seed(0)
+    dec = fpn.FPNDecoder().eval()
+    _randomise_batchnorm(dec)
+    maps = (torch.randn(2, 8, 40, 56), torch.randn(2, 16, 20, 28), torch.randn(2, 32, 10, 14),
+            torch.randn(2, 64, 5, 7))
+    layouts = []
+    real_up2 = fpn._up2
+    monkeypatch.setattr(fpn, "_up2", lambda x: layouts.append(x.is_contiguous(memory_format=torch.channels_last))
+                        or real_up2(x))
+    for levels in (1, 2, 4):
+        ref = [o.detach() for o in dec(*maps, levels=levels)]  # autograd on: the modules as trained
+        assert not any(layouts)
+        layouts.clear()
+        with torch.no_grad(), prepared.session(dec):
+            assert prepared.lean() and not prepared.active()
+            lean = dec(*maps, levels=levels)
+        assert all(layouts) and len(layouts) == levels - 1
+        layouts.clear()
+        assert [o.shape for o in lean] == [o.shape for o in ref]
+        for a, b in zip(lean, ref):
+            assert a.is_contiguous() and torch.allclose(a, b, rtol=1e-5, atol=1e-5 * b.abs().max().item())
+
+
 def test_precomputed_features_give_the_same_output_and_can_be_released():
     model = build_model("lite").eval()
     imgs, proj, dv = _random_batch(1, 3, 64, 96)
