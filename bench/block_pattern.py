@@ -13,16 +13,15 @@ On a synthetic scene with exact depth (5 photos, every view the reference once, 
   patches), all steps and with the largest 1 % clipped;
 * per stage at its own resolution, the mean squared relative step by pixel index modulo 8.
 
-``--shift`` averages the stage-1 transformer's logits over the volume as is and shifted by half a token
-patch (an inference experiment, not a package option).
+``--cvt-shifts K`` runs stage 1's transformer over K placements of its token grid (``ModelConfig.cvt_shifts``;
+default: the weights' stored setting, the ``lite`` preset's).
 
-    PYTHONPATH=src python bench/block_pattern.py [--size 480 640] [--seed 5000000] [--shift] [--checkpoint PATH]
+    PYTHONPATH=src python bench/block_pattern.py [--size 480 640] [--seed 5000000] [--cvt-shifts K] [--checkpoint PATH]
 """
 
 from __future__ import annotations
 
 import argparse
-import contextlib
 import tempfile
 
 import numpy as np
@@ -69,34 +68,12 @@ def to_full(depth: torch.Tensor, H: int, W: int) -> np.ndarray:
     return (1.0 / F.interpolate(inv[None, None], (H, W), mode="bilinear", align_corners=True))[0, 0].double().numpy()
 
 
-@contextlib.contextmanager
-def half_patch_shift():
-    """Average the stage-1 transformer's logits with those of the volume shifted by half a token patch."""
-    from mvsformerpp.models.cvt import CostVolumeTransformer
-
-    plain = CostVolumeTransformer.forward
-
-    def forward(self, volume, coords=None):
-        sy, sx = self.down[0].stride[1] // 2, self.down[0].stride[2] // 2
-        pad = (sx, sx, sy, sy)
-        shifted = plain(self, F.pad(volume, pad),
-                        None if coords is None else F.pad(coords, pad + (0, 0), mode="replicate"))
-        H, W = volume.shape[-2:]
-        return (plain(self, volume, coords) + shifted[..., sy:sy + H, sx:sx + W]) / 2
-
-    CostVolumeTransformer.forward = forward
-    try:
-        yield
-    finally:
-        CostVolumeTransformer.forward = plain
-
-
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--size", type=int, nargs=2, default=(480, 640), metavar=("H", "W"))
     ap.add_argument("--seed", type=int, default=5_000_000)
     ap.add_argument("--checkpoint", help="weights to measure (default: the shipped ones)")
-    ap.add_argument("--shift", action="store_true", help="the half-patch shift experiment at stage 1")
+    ap.add_argument("--cvt-shifts", type=int, metavar="K", help="placements of stage 1's token grid (1-4)")
     a = ap.parse_args()
     import mvsformerpp.models.mvsformer as network
     from mvsformerpp.io.images import read_image
@@ -108,6 +85,9 @@ def main() -> None:
     from mvsformerpp.synth import generate_scene
 
     model = (load_model(a.checkpoint) if a.checkpoint else load_shipped()).prepare_for_inference()
+    stage1 = model.fusions[0].cost_reg
+    if a.cvt_shifts is not None:
+        stage1.shifts = a.cvt_shifts
     captured = {}
     decode = network.decode_views
 
@@ -125,7 +105,7 @@ def main() -> None:
 
     network.decode_views, model.FMT_module.forward = spy_decode, spy_fmt
     rows = []
-    with tempfile.TemporaryDirectory() as tmp, half_patch_shift() if a.shift else contextlib.nullcontext():
+    with tempfile.TemporaryDirectory() as tmp:
         scene = generate_scene(tmp, seed=a.seed, num_views=5, height=a.size[0], width=a.size[1])
         cams = [read_cam(scene / "cams" / f"{i:08d}_cam.txt") for i in range(5)]
         imgs = [torch.from_numpy(read_image(scene / "images" / f"{i:08d}.png").astype(np.float32) / 255)
@@ -153,7 +133,7 @@ def main() -> None:
             r |= {f"stage {s} profile": modulo_profile(out[f"stage{s}"]["depth"][0].double().numpy())
                   for s in range(1, 5)}
             rows.append(r)
-    print(f"scene seed {a.seed}, {a.size[1]}x{a.size[0]}, 5 views{', half-patch shift at stage 1' if a.shift else ''}; "
+    print(f"scene seed {a.seed}, {a.size[1]}x{a.size[0]}, 5 views, stage 1 in {stage1.shifts} placement(s); "
           "medians over the views")
     for k in rows[0]:
         if k.endswith("profile"):

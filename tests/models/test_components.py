@@ -416,6 +416,65 @@ def test_the_lean_plain_decoder_runs_channels_last_with_the_same_numbers(monkeyp
             assert a.is_contiguous() and torch.allclose(a, b, rtol=1e-5, atol=1e-5 * b.abs().max().item())
 
 
+def test_shifted_token_grids_cancel_the_patch_border_steps(monkeypatch):
+    """cvt_shifts: a decoder whose logits step at its token patches' borders (a bias by position in the
+    4x4-cell patch, counted from the grid's origin) loses the steps exactly when the logits are averaged
+    over the four diagonal placements of the grid, each cropped back onto the volume's cells; one placement
+    keeps them, and training always runs one."""
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    rows, cols = torch.tensor([0.0, 1.0, 3.0, 7.0]), torch.tensor([2.0, 0.0, 5.0, 1.0])
+
+    def blocky(volume):
+        H, W = volume.shape[-2:]
+        bias = rows[torch.arange(H) % 4].view(H, 1) + cols[torch.arange(W) % 4].view(1, W)
+        return volume.sum(1, keepdim=True) + bias
+
+    cvt = CostVolumeTransformer(num_layers=1, shifts=4).eval()
+    monkeypatch.setattr(cvt, "_logits", blocky)
+    volume = torch.randn(1, 8, 6, 8, 12)
+    with torch.no_grad():
+        smooth = cvt(volume)
+        cvt.shifts = 2  # half a patch: the steps halve
+        half = cvt(volume)
+        cvt.shifts = 1
+        one = cvt(volume)
+        cvt.shifts = 4
+        cvt.train()
+        trained = cvt(volume)
+    assert torch.allclose(smooth, volume.sum(1, keepdim=True) + rows.mean() + cols.mean(), atol=1e-5)
+    half_rows, half_cols = (rows[:2] + rows[2:]) / 2, (cols[:2] + cols[2:]) / 2
+    expected_half = volume.sum(1, keepdim=True) + half_rows[torch.arange(8) % 2].view(8, 1) \
+        + half_cols[torch.arange(12) % 2].view(1, 12)
+    assert torch.allclose(half, expected_half, atol=1e-5)
+    assert torch.equal(one, blocky(volume)) and torch.equal(trained, blocky(volume))
+    for bad in (0, 5):
+        with pytest.raises(ValueError, match="cvt_shifts must be 1 .. 4"):
+            CostVolumeTransformer(num_layers=1, shifts=bad)
+
+
+def test_the_shifted_placements_see_the_volume_under_each_shift():
+    """Every placement decodes the volume itself, translated: with the real transformer, the mean over the
+    placements equals the mean of single passes over volumes padded by repeating their border cells
+    (built by index clamping, not F.pad) and cropped back."""
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    torch.manual_seed(3)
+    cvt = CostVolumeTransformer(num_layers=2, shifts=4).eval()
+    volume = torch.randn(1, 8, 8, 8, 12)
+    with torch.no_grad():
+        averaged = cvt(volume)
+        cvt.shifts = 1
+        passes = []
+        for s in range(4):
+            H, W = 8 + 4, 12 + 4
+            iy = (torch.arange(H if s else 8) - s).clamp(0, 7)
+            ix = (torch.arange(W if s else 12) - s).clamp(0, 11)
+            padded = volume[..., iy, :][..., ix]
+            passes.append(cvt(padded)[..., s:s + 8, s:s + 12])
+    assert torch.allclose(averaged, torch.stack(passes).mean(0), atol=1e-5)
+
+
 def test_precomputed_features_give_the_same_output_and_can_be_released():
     model = build_model("lite").eval()
     imgs, proj, dv = _random_batch(1, 3, 64, 96)

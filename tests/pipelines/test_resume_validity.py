@@ -83,3 +83,25 @@ def test_weights_file_identity_changes_every_key(tmp_path):
 def test_keys_are_distinct_per_view(tmp_path, num_views):
     s = load_scene(scene(tmp_path / "s"))
     assert len(set(view_fingerprints(s, num_views, {}, None))) == 4
+
+
+def test_a_changed_network_setting_recomputes_every_view(tmp_path):
+    """The preset's run-time network settings (here stage 1's token-grid placements) are part of each view's
+    fingerprint: the default is the preset's value, so asking for it explicitly reuses the maps."""
+    import dataclasses
+
+    from mvsformerpp.models.config import get_config
+
+    src, out = scene(tmp_path / "s"), tmp_path / "out"
+
+    def rewritten(**change):
+        before = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")} if out.is_dir() else {}
+        reconstruct(src, out, dataclasses.replace(FAST, **change), quiet=True)
+        after = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")}
+        return {int(name[:8]) for name, ino in after.items() if before.get(name) != ino}
+
+    preset = get_config(FAST.preset).cvt_shifts
+    other = 1 if preset != 1 else 2
+    assert rewritten(cvt_shifts=other) == {0, 1, 2, 3}
+    assert rewritten() == {0, 1, 2, 3}
+    assert rewritten(cvt_shifts=preset) == set()

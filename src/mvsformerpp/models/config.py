@@ -50,6 +50,11 @@ class ModelConfig:
     standardised value over the hypotheses, so that a window that matches nothing distinctly (a painted
     wall) adds nothing; None: ungated (bounds chosen on painted walls, the DTU pair and the calibration scenes:
     docs/model-card.md, "Painted walls")."""
+    cvt_shifts: int = 1
+    """Stage 1's transformer at inference: the mean of its logits over this many placements of its token
+    grid, shifted along the diagonal by patch/k cells each (k = 4: 0, 1, 2, 3 cells), so that no patch border
+    stays where the other passes have one (:class:`~mvsformerpp.models.cvt.CostVolumeTransformer`); 1: one
+    pass, as the reference (and always in training)."""
     temperatures: tuple[float, float, float, float] = (5.0, 5.0, 5.0, 1.0)
     """Inference temperature per stage."""
     loss_weights: tuple[float, float, float, float] = (1.0, 1.0, 1.0, 1.0)
@@ -81,7 +86,7 @@ PRESETS: dict[str, ModelConfig] = {
     # window chosen on synthetic calibration scenes: docs/model-card.md, "Stage 1's local evidence"), gated
     # by its own peak so that windows with nothing to match (painted walls) add nothing ("Painted walls").
     "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2,
-                        local_evidence=2.0, local_evidence_box=13, local_evidence_gate=(1.5, 2.2)),
+                        local_evidence=2.0, local_evidence_box=13, local_evidence_gate=(1.5, 2.2), cvt_shifts=2),
 }
 
 
@@ -93,7 +98,7 @@ def get_config(preset: str = "paper", **overrides) -> ModelConfig:
 
 # Fields that change only how a network runs or trains, not which weights fit it.
 _NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", "local_evidence",
-                     "local_evidence_box", "local_evidence_gate")
+                     "local_evidence_box", "local_evidence_gate", "cvt_shifts")
 
 
 def architecture(config: ModelConfig) -> dict:

@@ -126,8 +126,13 @@ class CostVolumeTransformer(nn.Module):
 
     def __init__(self, in_ch: int = 8, mid_ch: int = 64, num_heads: int = 4, num_layers: int = 6,
                  patch=(2, 4, 4), mlp_ratio: float = 4.0, train_avg_tokens: int = TRAIN_AVG_TOKENS,
-                 local_weight: float = 0.0, local_box: int = 9, local_gate: tuple[float, float] | None = None):
+                 local_weight: float = 0.0, local_box: int = 9, local_gate: tuple[float, float] | None = None,
+                 shifts: int = 1):
         super().__init__()
+        if not 1 <= int(shifts) <= min(patch[1:]):
+            raise ValueError(f"cvt_shifts must be 1 .. {min(patch[1:])} (the token patch's side in cells), "
+                             f"got {shifts}")
+        self.shifts = int(shifts)
         if local_box < 1 or local_box % 2 == 0:
             raise ValueError(f"local_evidence_box must be an odd number of cells >= 1, got {local_box}")
         if local_gate is not None and not (len(local_gate) == 2 and local_gate[0] < local_gate[1]):
@@ -158,11 +163,32 @@ class CostVolumeTransformer(nn.Module):
             evidence = evidence * ((evidence.amax(2, keepdim=True) - a) / (b - a)).clamp_(0, 1)
         if coords is not None:
             volume = volume + self.pe_proj(sine_encoding_3d(coords, self.in_ch))
+        logits = self._logits(volume) if self.training or self.shifts == 1 else self._shift_averaged(volume)
+        return logits if evidence is None else logits.add_(evidence, alpha=self.local_weight)
+
+    def _logits(self, volume: torch.Tensor) -> torch.Tensor:
         x = self.down(volume)
         B, C, d, h, w = x.shape
         tokens = x.permute(0, 3, 4, 2, 1).reshape(B, h * w * d, C)  # (h, w, d) order, as the reference
         for layer in self.attention_layers:
             tokens = layer(tokens)
         x = tokens.reshape(B, h, w, d, C).permute(0, 4, 3, 1, 2)
-        logits = self.prob(self.up(x))
-        return logits if evidence is None else logits.add_(evidence, alpha=self.local_weight)
+        return self.prob(self.up(x))
+
+    def _shift_averaged(self, volume: torch.Tensor) -> torch.Tensor:
+        """The mean of the logits over ``shifts`` placements of the token grid. Each token decodes its own
+        4x4-cell patch, so one placement's logits step at the patch borders (the depth maps' 32-pixel block
+        pattern: docs/model-card.md, "Block pattern"); placement i starts the grid i * patch / shifts cells
+        up and left of the volume (its border cells repeated to fill the patches) and is cropped back."""
+        ph, pw = self.down[0].kernel_size[1:]
+        H, W = volume.shape[-2:]
+        total = None
+        for i in range(self.shifts):
+            sy, sx = i * ph // self.shifts, i * pw // self.shifts
+            if sy or sx:
+                padded = F.pad(volume, (sx, (pw - sx) % pw, sy, (ph - sy) % ph, 0, 0), mode="replicate")
+                logits = self._logits(padded)[..., sy:sy + H, sx:sx + W]
+            else:
+                logits = self._logits(volume)
+            total = logits if total is None else total.add_(logits)
+        return total.div_(self.shifts)

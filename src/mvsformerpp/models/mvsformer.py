@@ -53,7 +53,8 @@ class MVSFormerPP(nn.Module):
         self.FMT_module = FMTWithPathway(cfg.feat_chs[3], cfg.fmt_heads, cfg.fmt_layers, cfg.feat_chs[0])
         cvt = dict(mid_ch=cfg.cvt_dim, num_heads=cfg.cvt_heads, num_layers=cfg.cvt_layers, patch=cfg.cvt_patch,
                    train_avg_tokens=cfg.cvt_train_avg_tokens, local_weight=cfg.local_evidence,
-                   local_box=cfg.local_evidence_box, local_gate=cfg.local_evidence_gate)
+                   local_box=cfg.local_evidence_box, local_gate=cfg.local_evidence_gate,
+                   shifts=cfg.cvt_shifts)
         self.fusions = nn.ModuleList(
             [StageNet(n, cfg.groups, "cvt" if i == 0 else "unet", cvt) for i, n in enumerate(cfg.num_hypotheses)]
         )

@@ -27,7 +27,8 @@ def build_network(config: ReconstructConfig) -> torch.nn.Module:
             raise InputError("checkpoint file not found", ckpt)
         _check_stored_preset(ckpt, config.preset)
     torch.manual_seed(config.seed)
-    model = mvsformerpp.build_model(config.preset)
+    model = mvsformerpp.build_model(config.preset, **({} if config.cvt_shifts is None
+                                                      else {"cvt_shifts": config.cvt_shifts}))
     if config.checkpoint is not None:
         try:
             mvsformerpp.load_checkpoint(model, ckpt)
@@ -102,6 +103,18 @@ def weights_id(config: ReconstructConfig) -> str:
         return "shipped:" + shipped.shipped_record()["sha256"]
     return f"random:{config.seed}"
 
+
+
+def network_settings(config: ReconstructConfig) -> dict:
+    """The run-time settings of the network ``build_network(config)`` builds that change its depth maps but
+    not its weights (stage 1's local evidence and token-grid placements): part of each view's fingerprint,
+    so that a resumed run redoes the views made with other settings, also when a new version of the
+    package changes a preset's."""
+    from mvsformerpp.models.config import get_config
+
+    overrides = {} if config.cvt_shifts is None else {"cvt_shifts": config.cvt_shifts}
+    model = get_config(config.preset, **overrides).to_dict()
+    return {k: model[k] for k in ("local_evidence", "local_evidence_box", "local_evidence_gate", "cvt_shifts")}
 
 
 def fusion_conf_for(config: ReconstructConfig) -> float | None:

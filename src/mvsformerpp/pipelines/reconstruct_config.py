@@ -61,6 +61,10 @@ class ReconstructConfig:
     temperatures: tuple[float, ...] = field(default=(5.0, 5.0, 5.0, 1.0),
                                             metadata={"group": RUN, "metavar": "T", "nargs": 4})
     """Per-stage softmax temperatures of the depth readout (the paper's: 5 5 5 1)."""
+    cvt_shifts: int | None = field(default=None, metadata={"group": NETWORK, "metavar": "K"})
+    """Placements of stage 1's transformer token grid whose logits are averaged, 1-4 (default: the
+    preset's, 4 for lite and 1, the reference's, for paper): each placement's 32-pixel patches leave a
+    block pattern in the depth maps that the others cancel; each one costs a pass of that transformer."""
     fusion: Literal[FUSION_CHOICES + ("none",)] = field(default="normal", metadata={"group": RUN})
     """Fusion preset (dtu, tnt_intermediate and tnt_advanced are the paper's settings, see
     ``mvsformerpp fuse``); none writes the depth maps only (fuse later with ``mvsformerpp fuse``)."""
@@ -107,6 +111,9 @@ class ReconstructConfig:
             raise InputError(f"{config_flag('interval_scale')} must be a positive number, got {self.interval_scale}")
         if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
             raise InputError(f"{config_flag('fusion_conf')} must be a confidence in [0, 1), got {self.fusion_conf}")
+        if self.cvt_shifts is not None and not 1 <= self.cvt_shifts <= 4:
+            raise InputError(f"{config_flag('cvt_shifts')} must be 1, 2, 3 or 4 placements of the token grid, "
+                             f"got {self.cvt_shifts}")
         if len(self.temperatures) != 4:
             raise InputError(f"{config_flag('temperatures')} needs one value per stage (4), got {self.temperatures}")
         if not all(math.isfinite(t) and t > 0 for t in self.temperatures):
@@ -114,10 +121,12 @@ class ReconstructConfig:
                              "5 5 5 1), got " + " ".join(f"{t:g}" for t in self.temperatures))
 
     def result_settings(self) -> dict:
-        """The fields that change the depth maps (not device or cache size, which only change speed)."""
+        """The fields that change the depth maps (not device or cache size, which only change speed; the
+        network's settings, ``cvt_shifts`` with its preset default resolved, are
+        :func:`~mvsformerpp.pipelines.network.network_settings`)."""
         d = dataclasses.asdict(self)
         for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_resolution", "mask_dir",
-                  "sfm"):  # (SfM: cameras)
+                  "sfm", "cvt_shifts"):  # (SfM: cameras)
             d.pop(k)
         return d
 

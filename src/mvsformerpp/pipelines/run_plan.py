@@ -18,7 +18,7 @@ import torch
 from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
 from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.io.scene import Scene
-from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, weights_id, weights_name
+from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings, weights_id, weights_name
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 
 log = logging.getLogger(__name__)
@@ -91,7 +91,10 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
     weights = None
     if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
-    keys = view_fingerprints(scene, config.num_views, {**config.result_settings(), **resolved}, weights)
+    settings = {**config.result_settings(), **resolved}
+    if not given_model:  # the preset's network as built for this run (a given network is the caller's)
+        settings["network"] = network_settings(config)
+    keys = view_fingerprints(scene, config.num_views, settings, weights)
     return RunPlan(config=config, input_path=Path(input_path), scene=scene, source_format=full.source_format,
                    input_views=len(full), fingerprint=fingerprint, device=device, long_side=long_side, plans=plans,
                    keys=keys,
