@@ -347,6 +347,8 @@ CASES: list[Case] = [
     Case("recon-memory-zero", "--memory-gb 0", lambda d: recon(d, "--memory-gb", "0"), "--memory-gb"),
     Case("recon-memory-nan", "--memory-gb nan", lambda d: recon(d, "--memory-gb", "nan"), "--memory-gb"),
     Case("recon-memory-inf", "--memory-gb inf", lambda d: recon(d, "--memory-gb", "inf"), "--memory-gb"),
+    Case("recon-cvt-shifts-five", "--cvt-shifts 5",
+         lambda d: recon(d, "--cvt-shifts", "5"), "--cvt-shifts"),
     Case("recon-temperatures-zero", "--temperatures 0 0 0 0",
          lambda d: recon(d, "--temperatures", "0", "0", "0", "0"), "--temperatures"),
     Case("recon-temperatures-nan", "--temperatures nan 5 5 1",

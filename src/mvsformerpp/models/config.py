@@ -85,6 +85,8 @@ PRESETS: dict[str, ModelConfig] = {
     # Stage 1 adds the cost volume's own window-aggregated evidence to its transformer's logits (weight and
     # window chosen on synthetic calibration scenes: docs/model-card.md, "Stage 1's local evidence"), gated
     # by its own peak so that windows with nothing to match (painted walls) add nothing ("Painted walls").
+    # Its transformer runs over two placements of its token grid, which halves the 32-pixel block pattern
+    # for one more pass (four remove it for three: "Stage 1's token grid in several placements").
     "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2,
                         local_evidence=2.0, local_evidence_box=13, local_evidence_gate=(1.5, 2.2), cvt_shifts=2),
 }

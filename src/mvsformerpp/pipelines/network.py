@@ -27,8 +27,7 @@ def build_network(config: ReconstructConfig) -> torch.nn.Module:
             raise InputError("checkpoint file not found", ckpt)
         _check_stored_preset(ckpt, config.preset)
     torch.manual_seed(config.seed)
-    model = mvsformerpp.build_model(config.preset, **({} if config.cvt_shifts is None
-                                                      else {"cvt_shifts": config.cvt_shifts}))
+    model = mvsformerpp.build_model(config.preset, **_model_overrides(config))
     if config.checkpoint is not None:
         try:
             mvsformerpp.load_checkpoint(model, ckpt)
@@ -112,9 +111,13 @@ def network_settings(config: ReconstructConfig) -> dict:
     package changes a preset's."""
     from mvsformerpp.models.config import get_config
 
-    overrides = {} if config.cvt_shifts is None else {"cvt_shifts": config.cvt_shifts}
-    model = get_config(config.preset, **overrides).to_dict()
+    model = get_config(config.preset, **_model_overrides(config)).to_dict()
     return {k: model[k] for k in ("local_evidence", "local_evidence_box", "local_evidence_gate", "cvt_shifts")}
+
+
+def _model_overrides(config: ReconstructConfig) -> dict:
+    """The preset's network settings that ``config`` changes."""
+    return {} if config.cvt_shifts is None else {"cvt_shifts": config.cvt_shifts}
 
 
 def fusion_conf_for(config: ReconstructConfig) -> float | None:

@@ -63,7 +63,7 @@ class ReconstructConfig:
     """Per-stage softmax temperatures of the depth readout (the paper's: 5 5 5 1)."""
     cvt_shifts: int | None = field(default=None, metadata={"group": NETWORK, "metavar": "K"})
     """Placements of stage 1's transformer token grid whose logits are averaged, 1-4 (default: the
-    preset's, 4 for lite and 1, the reference's, for paper): each placement's 32-pixel patches leave a
+    preset's: 2 for lite, 1 (the reference's) for paper): each placement's 32-pixel patches leave a
     block pattern in the depth maps that the others cancel; each one costs a pass of that transformer."""
     fusion: Literal[FUSION_CHOICES + ("none",)] = field(default="normal", metadata={"group": RUN})
     """Fusion preset (dtu, tnt_intermediate and tnt_advanced are the paper's settings, see
