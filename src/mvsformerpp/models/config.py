@@ -98,9 +98,10 @@ def get_config(preset: str = "paper", **overrides) -> ModelConfig:
     return dataclasses.replace(PRESETS[preset], **overrides)
 
 
+# Fields that change the depth maps of a trained network at inference, not which weights fit it.
+INFERENCE_SETTINGS = ("local_evidence", "local_evidence_box", "local_evidence_gate", "cvt_shifts")
 # Fields that change only how a network runs or trains, not which weights fit it.
-_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", "local_evidence",
-                     "local_evidence_box", "local_evidence_gate", "cvt_shifts")
+_NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freeze_vit", *INFERENCE_SETTINGS)
 
 
 def architecture(config: ModelConfig) -> dict:

@@ -109,10 +109,10 @@ def network_settings(config: ReconstructConfig) -> dict:
     not its weights (stage 1's local evidence and token-grid placements): part of each view's fingerprint,
     so that a resumed run redoes the views made with other settings, also when a new version of the
     package changes a preset's."""
-    from mvsformerpp.models.config import get_config
+    from mvsformerpp.models.config import INFERENCE_SETTINGS, get_config
 
     model = get_config(config.preset, **_model_overrides(config)).to_dict()
-    return {k: model[k] for k in ("local_evidence", "local_evidence_box", "local_evidence_gate", "cvt_shifts")}
+    return {k: model[k] for k in INFERENCE_SETTINGS}
 
 
 def _model_overrides(config: ReconstructConfig) -> dict:
