@@ -369,8 +369,9 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
 
 
 def test_banded_decoder_level_matches_upsample_then_convolve(monkeypatch):
-    """The row-banded last FPN level equals out3(up2(t2) + inner3(conv01)) for every band layout,
-    including bands of a few rows and a last band that is shorter than the others."""
+    """The last FPN level of prepared inference (its kernel rows convolved before the vertical
+    interpolation, in row bands) equals out3(up2(t2) + inner3(conv01)) for every band layout, including
+    bands of a few rows and a last band that is shorter than the others."""
     from mvsformerpp.models import fpn
 
     torch.manual_seed(0)

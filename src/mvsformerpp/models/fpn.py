@@ -118,8 +118,10 @@ class FPNDecoder(nn.Module):
         conv, inner = self.out3[0], self.inner3
         w_inner = torch.einsum("ocij,ck->okij", conv.weight, inner.weight[:, :, 0, 0])
         w, b = fused_conv_bn(conv, self.out3[1], weight=torch.cat([conv.weight, w_inner], 1))
-        f["last"] = (w[:, : conv.in_channels].contiguous(memory_format=_CL),
-                     w[:, conv.in_channels:].contiguous(memory_format=_CL), b, inner.bias.detach().view(1, -1, 1, 1))
+        w_up = w[:, : conv.in_channels]  # [c0, c3, 3, 3] -> its three kernel rows as one [3 c0, c3, 1, 3]
+        w_rows = w_up.permute(2, 0, 1, 3).reshape(-1, conv.in_channels, 1, 3)
+        f["last"] = (w_rows.contiguous(memory_format=_CL), w[:, conv.in_channels:].contiguous(memory_format=_CL), b,
+                     inner.bias.detach().view(1, -1, 1, 1))
         return f
 
     def _forward_prepared(self, forms, conv01, conv11, conv21, conv31, levels: int = 4) -> list[torch.Tensor]:
@@ -141,39 +143,45 @@ class FPNDecoder(nn.Module):
 
     @staticmethod
     def _last_level_prepared(last: tuple, t2: torch.Tensor, conv01: torch.Tensor) -> torch.Tensor:
-        """out3(up2(t2) + inner3(conv01)) in row bands, without any 64-channel full-resolution map.
+        """out3(up2(t2) + inner3(conv01)) without any 64-channel full-resolution map.
 
         By linearity, Conv3x3(up2(t2) + inner3(conv01)) = Conv3x3(up2(t2) + b_inner) + Conv3x3'(conv01)
-        with Conv3x3' = Conv3x3 o inner3 (c0 -> c0 channels), both zero-padded at the image border. The
-        second term is one thin convolution over the whole image; the first runs in bands of output
-        rows (about BAND_BYTES each), each needing its input rows and one halo row either side, whose
-        upsampling is computed directly (separable bilinear, align_corners=True). The eval BatchNorm is
-        folded in and Swish runs in place. The same numbers up to float rounding, a bounded working set.
+        with Conv3x3' = Conv3x3 o inner3 (c0 -> c0 channels), both zero-padded at the image border; the
+        second term is one thin convolution over the whole image. In the first, up2 = U_y U_x (separable
+        bilinear, align_corners=True) and each kernel row ky acts along x only, so it commutes with U_y:
+        Conv3x3(U_y S)[y] = sum over ky of U_y(R_ky)[y + ky - 1] (zero outside the image), where
+        R_ky = the 1x3 convolution of S = U_x(t2) + b_inner with kernel row ky. The three R_ky are
+        computed at t2's rows (c0 channels each, in bands of about BAND_BYTES of S), then interpolated in
+        y, shifted and summed into the output in row bands. The eval BatchNorm is folded in and Swish runs
+        in place. The same numbers up to float rounding; the largest maps are 3 c0 channels at half the
+        rows, not c3 channels at full resolution.
         """
-        w_up, w_low, b, inner_bias = last
+        w_rows, w_low, b, inner_bias = last
         out = F.conv2d(conv01.float().contiguous(memory_format=_CL), w_low, b, padding=1)
-        t2 = t2.float().permute(0, 2, 3, 1).contiguous()  # NHWC rows: cheap to gather and interpolate
-        N, _, H, W = out.shape
-        rows = max(4, BAND_BYTES // (4 * w_up.shape[1] * W))
-        for r0 in range(0, H, rows):
-            r1 = min(H, r0 + rows)
-            a, z = max(r0 - 1, 0), min(r1 + 1, H)
-            up = _up2_rows_nhwc(t2, a, z, H, W).add_(inner_bias)
-            # zero padding is right at the image border; elsewhere the halo rows are real and the
-            # padded output rows are dropped
-            band = out[:, :, r0:r1].add_(F.conv2d(up, w_up, padding=1)[:, :, r0 - a:r1 - a])
+        t2 = t2.float()
+        N, c0, H, W = out.shape
+        c3, h = t2.shape[1], t2.shape[2]
+        rows_k = out.new_empty(3, N, h, W, c0)  # R_ky, NHWC rows: cheap to gather
+        step = max(1, BAND_BYTES // (4 * c3 * W))
+        for a in range(0, h, step):
+            z = min(h, a + step)
+            s = F.interpolate(t2[:, :, a:z], (z - a, W), mode="bilinear", align_corners=True).add_(inner_bias)
+            r = F.conv2d(s.contiguous(memory_format=_CL), w_rows, padding=(0, 1))  # [N, 3 c0, z - a, W]
+            rows_k[:, :, a:z] = r.permute(0, 2, 3, 1).reshape(N, z - a, W, 3, c0).permute(3, 0, 1, 2, 4)
+            del s, r
+        out_rows = out.permute(0, 2, 3, 1)  # the channels-last output as NHWC rows
+        scale = (h - 1) / (H - 1) if H > 1 else 0.0
+        step = max(1, BAND_BYTES // (4 * 2 * c0 * W))
+        for r0 in range(0, H, step):
+            r1 = min(H, r0 + step)
+            band = out_rows[:, r0:r1]
+            for ky in range(3):
+                y = torch.arange(r0 + ky - 1, r1 + ky - 1, device=out.device)
+                inside = ((y >= 0) & (y < H)).float()
+                src = y.clamp(0, H - 1).float() * scale
+                y0 = src.floor().long().clamp_(max=h - 1)
+                frac = src - y0
+                band.addcmul_(rows_k[ky].index_select(1, y0), ((1 - frac) * inside).view(1, -1, 1, 1))
+                band.addcmul_(rows_k[ky].index_select(1, (y0 + 1).clamp_(max=h - 1)), (frac * inside).view(1, -1, 1, 1))
             band.mul_(torch.sigmoid(band))
         return out
-
-
-def _up2_rows_nhwc(x: torch.Tensor, a: int, z: int, H: int, W: int) -> torch.Tensor:
-    """Rows a..z-1 of F.interpolate(x, (H, W), mode="bilinear", align_corners=True) for x given as
-    NHWC [N, h, w, C]; the result is [N, C, z-a, W] in channels-last memory."""
-    h = x.shape[1]
-    scale = (h - 1) / (H - 1) if H > 1 else 0.0
-    ys = torch.arange(a, z, dtype=torch.float32, device=x.device) * scale
-    y0 = ys.floor().long().clamp_(max=h - 1)
-    y1 = (y0 + 1).clamp_(max=h - 1)
-    fy = (ys - y0).view(-1, 1, 1)
-    rows = (x[:, y0] * (1 - fy)).add_(x[:, y1] * fy).permute(0, 3, 1, 2)
-    return F.interpolate(rows, (z - a, W), mode="bilinear", align_corners=True)
