@@ -109,6 +109,8 @@ class StageNet(nn.Module):
             for v in range(1, features.shape[1]):
                 src_proj = projection_4x4(proj[:, v, 0].float(), proj[:, v, 1].float())
                 src = features[:, v].float()
+                if inplace:  # eval without autograd: channels-last rows for the warp's gathers (the same values)
+                    src = src.contiguous(memory_format=torch.channels_last)
                 rays = warp_rays(src_proj, ref_proj, H, W)
                 corr = spare if spare is not None else ref.new_empty(B, self.groups, D, H, W)
                 for d in range(0, D, step):
