@@ -32,12 +32,18 @@ def plane_depth(view, z_plane=5.0):
     return (z_plane + nc @ view.t) / (rays @ nc)
 
 
-def make_runner(model, scene, cache_bytes, long_side=96):
+def make_runner(model, scene, cache_bytes, long_side=96, loads=None):
+    """A runner over random photos; ``loads`` (a list) records the index of every photo it reads."""
     rng = np.random.default_rng(1)
     images = [rng.integers(0, 256, (v.height, v.width, 3), dtype=np.uint8) for v in scene.views]
     plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
-    return SceneInference(model, scene, plans, lambda i: images[i], num_views=3, num_depth=16,
-                          cache_bytes=cache_bytes)
+
+    def load(i):
+        if loads is not None:
+            loads.append(i)
+        return images[i]
+
+    return SceneInference(model, scene, plans, load, num_views=3, num_depth=16, cache_bytes=cache_bytes)
 
 
 def test_depth_comes_back_at_original_resolution_with_exact_geometry(fake_model_cls):
@@ -52,11 +58,12 @@ def test_depth_comes_back_at_original_resolution_with_exact_geometry(fake_model_
         assert 0 <= res.confidence.min() and res.confidence.max() <= 1
 
 
-def test_cache_gives_identical_outputs_and_encodes_each_image_once(fake_model_cls):
+def test_cache_gives_identical_outputs_and_encodes_and_reads_each_image_once(fake_model_cls):
     scene = plane_scene(5)
     cached = fake_model_cls(plane_offset=5.0)
     plain = fake_model_cls(plane_offset=5.0)
-    r1 = make_runner(cached, scene, cache_bytes=1 << 24)
+    loads = []
+    r1 = make_runner(cached, scene, cache_bytes=1 << 24, loads=loads)
     r2 = make_runner(plain, scene, cache_bytes=0)
     for ref in range(len(scene)):
         a, b = r1.infer(ref), r2.infer(ref)
@@ -65,6 +72,7 @@ def test_cache_gives_identical_outputs_and_encodes_each_image_once(fake_model_cl
     assert cached.encoded == len(scene)  # once per image
     assert plain.encoded == len(scene) * 3  # once per (reference, view) pair
     assert r1.cache.hits == len(scene) * 3 - len(scene)
+    assert sorted(loads) == list(range(len(scene)))  # a cached image's photo is not read again
 
 
 def test_source_selection_pads_by_repeating_the_best_neighbour():

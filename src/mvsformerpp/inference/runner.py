@@ -121,18 +121,21 @@ class SceneInference:
         ids = self.view_set(ref)
         srcs = ids[1:]
         views = [self.scene.views[i] for i in ids]
-        imgs = torch.stack([self.canvas_image(i) for i in ids])[None]  # [1,V,3,Hc,Wc]
+        plan = self.plans[ref]
+        feats = self.cache.get_many(ids) if self.use_cache else None
+        if feats is None:
+            imgs = torch.stack([self.canvas_image(i) for i in ids])[None]  # [1,V,3,Hc,Wc]
+        else:  # the network reads only the images' shape from here: no photo is loaded again
+            imgs = torch.zeros((), device=self.device).expand(1, len(ids), 3, plan.canvas_height, plan.canvas_width)
         extr = np.stack([v.extrinsic for v in views])
         intr = np.stack([self.plans[i].scale_intrinsics(v.K) for i, v in zip(ids, views)])
         projs = {k: v.to(self.device) for k, v in stage_projections(extr, intr).items()}
         ref_view = self.scene.views[ref]
         depth_values = torch.linspace(ref_view.depth_min, ref_view.depth_max, self.num_depth,
                                       dtype=torch.float32, device=self.device)[None]
-        feats = self.cache.get_many(ids) if self.use_cache else None
         with autocast(self.device, self.precision):
             out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
                              release_features=feats is not None)
-        plan = self.plans[ref]
         if self.output_resolution == "working":
             depth = plan.canvas_to_working(out["depth"][0].float())
             conf = plan.canvas_to_working(out["photometric_confidence"][0].float())
