@@ -33,7 +33,7 @@ class FakeMVSModel(torch.nn.Module):
 
     def encode_images(self, imgs: torch.Tensor) -> FakeFeatures:
         assert imgs.ndim == 4 and imgs.shape[1] == 3
-        assert imgs.shape[-2] % 64 == 0 and imgs.shape[-1] % 64 == 0
+        assert imgs.shape[-2] % 32 == 0 and imgs.shape[-1] % 32 == 0
         self.encoded += imgs.shape[0]
         return FakeFeatures(F.avg_pool2d(imgs, 8) * self.scale)
 

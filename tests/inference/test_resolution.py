@@ -4,18 +4,19 @@ import torch
 
 from mvsformerpp.inference.resolution import (
     BYTES_PER_PIXEL_PER_VIEW,
+    MULTIPLE,
     choose_long_side,
     plan_views,
 )
 
 
 @pytest.mark.parametrize("size", [(640, 480), (480, 640), (1000, 333), (97, 1201), (64, 64)])
-def test_plan_keeps_aspect_and_pads_to_64(size):
+def test_plan_keeps_aspect_and_pads_to_the_network_multiple(size):
     (p,) = plan_views([size], 500)
     w, h = size
-    assert p.canvas_width % 64 == 0 and p.canvas_height % 64 == 0
-    assert p.resized_width <= p.canvas_width < p.resized_width + 64
-    assert p.resized_height <= p.canvas_height < p.resized_height + 64
+    assert p.canvas_width % MULTIPLE == 0 and p.canvas_height % MULTIPLE == 0
+    assert p.resized_width <= p.canvas_width < p.resized_width + MULTIPLE
+    assert p.resized_height <= p.canvas_height < p.resized_height + MULTIPLE
     assert max(p.resized_width, p.resized_height) <= max(500, 1)
     # Rounding to whole pixels moves the aspect ratio by less than one pixel's worth.
     assert abs(p.resized_width / p.resized_height - w / h) <= w / h * (1 / p.resized_height + 1 / p.resized_width)
@@ -38,11 +39,11 @@ def test_image_round_trip_through_canvas():
     (p,) = plan_views([(150, 70)], 1000)
     img = rng.integers(0, 256, (70, 150, 3), dtype=np.uint8)
     x = p.image_to_canvas(img)
-    assert x.shape == (3, 128, 192)
+    assert x.shape == (3, 96, 160)
     back = p.canvas_to_original(x[0])
     np.testing.assert_allclose(back.numpy(), img[..., 0] / 255.0, atol=1e-6)
     # Padding replicates the last column/row.
-    assert torch.equal(x[:, :70, 150:], x[:, :70, 149:150].expand(-1, -1, 42))
+    assert torch.equal(x[:, :70, 150:], x[:, :70, 149:150].expand(-1, -1, 10))
 
 
 def test_canvas_to_original_resizes_a_smooth_map():
@@ -55,6 +56,15 @@ def test_canvas_to_original_resizes_a_smooth_map():
     vv, uu = np.mgrid[0:300, 0:400]
     truth = (uu + 0.5) + 2 * (vv + 0.5)
     np.testing.assert_allclose(out[2:-2, 2:-2], truth[2:-2, 2:-2], rtol=1e-5)
+
+
+def test_photos_whose_sides_are_multiples_of_32_are_not_padded():
+    """The network needs multiples of 32 (its stage-1 token patches are 32 pixels): 640x480 photos run
+    on a 640x480 canvas, with no rows of padding computed and cropped away."""
+    (p,) = plan_views([(640, 480)], 640)
+    assert (p.canvas_width, p.canvas_height) == (640, 480)
+    (p,) = plan_views([(1600, 1200)], 1600)
+    assert (p.canvas_width, p.canvas_height) == (1600, 1216)
 
 
 def test_shared_canvas_for_mixed_sizes():
@@ -70,9 +80,9 @@ def test_choose_long_side_respects_cap_and_memory():
     side = choose_long_side(sizes, 5, None, budget)
     (p,) = plan_views(sizes, side)
     assert p.canvas_width * p.canvas_height * 5 * BYTES_PER_PIXEL_PER_VIEW <= budget
-    (bigger,) = plan_views(sizes, side + 64)
+    (bigger,) = plan_views(sizes, side + MULTIPLE)
     assert bigger.canvas_width * bigger.canvas_height * 5 * BYTES_PER_PIXEL_PER_VIEW > budget
-    assert choose_long_side(sizes, 5, None, 1.0) == 64  # floor
+    assert choose_long_side(sizes, 5, None, 1.0) == MULTIPLE  # floor
 
 
 def test_depth_upsampling_invents_no_depth_between_surfaces():

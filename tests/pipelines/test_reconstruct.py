@@ -89,7 +89,7 @@ def test_end_to_end_temple_with_the_lite_network(scene4, tmp_path):
     assert len(ply_points(cloud)) == summary["points"] and ply_colors(cloud) is not None
     assert (out / "fused.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
     saved = json.loads((out / "config.json").read_text())
-    assert saved["config"]["preset"] == "lite" and saved["resolved"]["canvas"] == [128, 128]
+    assert saved["config"]["preset"] == "lite" and saved["resolved"]["canvas"] == [128, 96]  # 4:3, no padding
     assert json.loads((out / "summary.json").read_text())["views"] == 4
     assert not list(out.rglob("*.tmp"))
 

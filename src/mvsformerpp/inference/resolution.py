@@ -1,4 +1,4 @@
-"""Working resolution: resize each view without distorting its aspect ratio, pad to a multiple of 64.
+"""Working resolution: resize each view without distorting its aspect ratio, pad to a multiple of 32.
 
 Pixel convention (the one fusion uses, see :mod:`mvsformerpp.geometry`): pixel ``(u, v)`` covers the
 square ``[u, u+1) x [v, v+1)`` and K maps to these continuous coordinates, so a resize by ``s``
@@ -19,9 +19,10 @@ import torch.nn.functional as F
 
 from mvsformerpp.geometry.camera import scale_intrinsics
 
-# The network downsamples by 8 and its DINOv2 branch works on 14-px patches of a resized copy; the
-# reference asks for image sizes that are a multiple of 64.
-MULTIPLE = 64
+# The network downsamples by 8, its stage-1 transformer takes patches of 4x4 cells (32 pixels) and its
+# DINOv2 branch works on 14-px patches of a copy resized by 7/16: image sides must be multiples of 32.
+# (The reference's README asks for 64, which pads 640x480 photos with 32 rows computed for nothing.)
+MULTIPLE = 32
 # Peak working memory of one forward per canvas pixel per view (beyond the weights): about 250 bytes
 # for this implementation in fp32 on the CPU at 512x640 and 1152x1536 (bench/bench_model.py; the
 # reference needs 430-730), rounded up for allocator slack and the per-image features handed in.
@@ -36,7 +37,7 @@ class ViewResize:
     height: int
     resized_width: int  # after resizing, before padding
     resized_height: int
-    canvas_width: int  # after padding (a multiple of 64; the same for every view of a scene)
+    canvas_width: int  # after padding (a multiple of 32; the same for every view of a scene)
     canvas_height: int
 
     @property
@@ -159,7 +160,7 @@ def plan_views(sizes: list[tuple[int, int]], long_side: int) -> list[ViewResize]
 
 def choose_long_side(sizes: list[tuple[int, int]], num_views: int, max_size: int | None,
                      memory_bytes: float | None) -> int:
-    """The largest longer side (a multiple of 64 at most the original) that fits ``max_size`` and memory.
+    """The largest longer side (a multiple of 32 at most the original) that fits ``max_size`` and memory.
 
     ``memory_bytes`` bounds the estimated peak of one forward over ``num_views`` views
     (:data:`BYTES_PER_PIXEL_PER_VIEW` per canvas pixel per view).

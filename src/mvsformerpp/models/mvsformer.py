@@ -95,8 +95,7 @@ class MVSFormerPP(nn.Module):
         """Run the cascade.
 
         Args:
-            imgs: [B, V, 3, H, W] ImageNet-normalised RGB, view 0 = reference; H, W multiples of 32
-                (64 recommended).
+            imgs: [B, V, 3, H, W] ImageNet-normalised RGB, view 0 = reference; H, W multiples of 32.
             proj_matrices: {"stage1".."stage4": [B, V, 2, 4, 4]}: slot 0 world-to-camera 4x4, slot 1
                 [:3,:3] intrinsics at that stage's scale (K/8, K/4, K/2, K).
             depth_values: [B, D]; only the first (dmin) and last (dmax) entries are used.
@@ -121,7 +120,7 @@ class MVSFormerPP(nn.Module):
         """
         B, V, _, H, W = imgs.shape
         if H % 32 or W % 32:
-            raise ValueError(f"image size {H}x{W} must be a multiple of 32 (64 recommended): resize or pad")
+            raise ValueError(f"image size {H}x{W} must be a multiple of 32: resize or pad")
         if stages is not None and not 1 <= stages <= len(self.fusions):
             raise ValueError(f"stages must be between 1 and {len(self.fusions)}, got {stages}")
         with prepared.session(self):

@@ -58,7 +58,7 @@ class TrainConfig:
     light_ids: tuple[int, ...] = (0, 1, 2, 3, 4, 5, 6)
     """DTU lightings used for training (each makes its own samples)."""
     height: int = 64
-    """Training height when ``resolutions`` is empty (multiple of 32; 64 recommended)."""
+    """Training height when ``resolutions`` is empty (a multiple of 32)."""
     width: int = 96
     """Training width when ``resolutions`` is empty."""
     resolutions: tuple[tuple[int, int], ...] = ()
@@ -340,7 +340,7 @@ def check_config(config: TrainConfig) -> TrainConfig:
         sizes.append(("val_height/val_width", (config.val_height or config.height, config.val_width or config.width)))
     for name, (h, w) in sizes:
         if h < 32 or w < 32 or h % 32 or w % 32:
-            raise InputError(f"training size {h}x{w} ({name}) must be multiples of 32 (64 recommended), e.g. "
+            raise InputError(f"training size {h}x{w} ({name}) must be multiples of 32, e.g. "
                              f"{max(32, -(-h // 32) * 32)}x{max(32, -(-w // 32) * 32)}")
     if config.num_depth < 2:
         raise InputError(f"num_depth must be at least 2 (the depth planes of a sample's range), got {config.num_depth} "
