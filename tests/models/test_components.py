@@ -476,6 +476,41 @@ def test_the_shifted_placements_see_the_volume_under_each_shift():
     assert torch.allclose(averaged, torch.stack(passes).mean(0), atol=1e-5)
 
 
+def test_training_with_random_placement_decodes_the_volume_under_a_drawn_shift():
+    """With ``random_placement`` a training pass draws a whole-cell offset per axis and decodes the volume
+    padded by its repeated border cells (built by index clamping) and cropped back; over draws every
+    offset of the patch occurs, gradients flow, and eval mode ignores the setting."""
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    torch.manual_seed(5)
+    cvt = CostVolumeTransformer(num_layers=1, shifts=2)
+    volume = torch.randn(1, 8, 8, 8, 12)
+    cvt.train()
+    cvt.random_placement = True
+    seen = set()
+    for seed in range(24):
+        torch.manual_seed(seed)
+        sy, sx = int(torch.randint(4, ())), int(torch.randint(4, ()))
+        torch.manual_seed(seed)
+        out = cvt(volume.clone().requires_grad_())
+        iy = (torch.arange(8 + (4 if sy else 0)) - sy).clamp(0, 7)
+        ix = (torch.arange(12 + (4 if sx else 0)) - sx).clamp(0, 11)
+        cvt.random_placement = False
+        expected = cvt(volume[..., iy, :][..., ix])[..., sy:sy + 8, sx:sx + 12]
+        cvt.random_placement = True
+        assert torch.allclose(out, expected, atol=1e-5), (sy, sx)
+        seen.add((sy, sx))
+    assert {sy for sy, _ in seen} == {sx for _, sx in seen} == {0, 1, 2, 3}
+    out.sum().backward()
+    assert cvt.down[0].weight.grad is not None
+    cvt.eval()
+    with torch.no_grad():
+        cvt.random_placement = True
+        a = cvt(volume)
+        cvt.random_placement = False
+        assert torch.equal(a, cvt(volume))
+
+
 def test_precomputed_features_give_the_same_output_and_can_be_released():
     model = build_model("lite").eval()
     imgs, proj, dv = _random_batch(1, 3, 64, 96)

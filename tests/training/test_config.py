@@ -50,6 +50,18 @@ def test_yaml_round_trip_and_overrides(tmp_path):
     assert loaded.lr == 0.5 and loaded.batch_size == RECIPES["dtu"].batch_size
 
 
+def test_random_placement_reaches_stage_1s_transformer():
+    """``cvt_random_placement`` (a YAML boolean) switches the training model's stage-1 transformer to
+    random token-grid placements; by default it trains as the reference."""
+    from mvsformerpp.training.trainer import build_training_model
+
+    cfg = load_config("synthetic", parse_overrides(["cvt_random_placement=true", "xavier_init=false"]))
+    assert cfg.cvt_random_placement is True
+    assert build_training_model(cfg).fusions[0].cost_reg.random_placement is True
+    cfg = load_config("synthetic", parse_overrides(["xavier_init=false"]))
+    assert build_training_model(cfg).fusions[0].cost_reg.random_placement is False
+
+
 @pytest.mark.parametrize("item,match", [("nosuchfield=1", "unknown training config keys"),
                                         ("lr=fast", "needs a number"), ("precision=fp8", "must be one of"),
                                         ("loss_weights=[1,2]", "needs 4 values"), ("lr", "key=value")])

@@ -133,6 +133,7 @@ class CostVolumeTransformer(nn.Module):
             raise ValueError(f"cvt_shifts must be 1 .. {min(patch[1:])} (the token patch's side in cells), "
                              f"got {shifts}")
         self.shifts = int(shifts)
+        self.random_placement = False  # training only: see TrainConfig.cvt_random_placement
         if local_box < 1 or local_box % 2 == 0:
             raise ValueError(f"local_evidence_box must be an odd number of cells >= 1, got {local_box}")
         if local_gate is not None and not (len(local_gate) == 2 and local_gate[0] < local_gate[1]):
@@ -163,7 +164,13 @@ class CostVolumeTransformer(nn.Module):
             evidence = evidence * ((evidence.amax(2, keepdim=True) - a) / (b - a)).clamp_(0, 1)
         if coords is not None:
             volume = volume + self.pe_proj(sine_encoding_3d(coords, self.in_ch))
-        logits = self._logits(volume) if self.training or self.shifts == 1 else self._shift_averaged(volume)
+        if self.training and self.random_placement:
+            ph, pw = self.down[0].kernel_size[1:]
+            logits = self._placed_logits(volume, int(torch.randint(ph, ())), int(torch.randint(pw, ())))
+        elif self.training or self.shifts == 1:
+            logits = self._logits(volume)
+        else:
+            logits = self._shift_averaged(volume)
         return logits if evidence is None else logits.add_(evidence, alpha=self.local_weight)
 
     def _logits(self, volume: torch.Tensor) -> torch.Tensor:
@@ -175,20 +182,24 @@ class CostVolumeTransformer(nn.Module):
         x = tokens.reshape(B, h, w, d, C).permute(0, 4, 3, 1, 2)
         return self.prob(self.up(x))
 
+    def _placed_logits(self, volume: torch.Tensor, sy: int, sx: int) -> torch.Tensor:
+        """The logits with the token grid starting ``sy``, ``sx`` cells up and left of the volume (its
+        border cells repeated to fill the patches), cropped back onto the volume's cells."""
+        if not (sy or sx):
+            return self._logits(volume)
+        ph, pw = self.down[0].kernel_size[1:]
+        H, W = volume.shape[-2:]
+        padded = F.pad(volume, (sx, (pw - sx) % pw, sy, (ph - sy) % ph, 0, 0), mode="replicate")
+        return self._logits(padded)[..., sy:sy + H, sx:sx + W]
+
     def _shift_averaged(self, volume: torch.Tensor) -> torch.Tensor:
         """The mean of the logits over ``shifts`` placements of the token grid. Each token decodes its own
         4x4-cell patch, so one placement's logits step at the patch borders (the depth maps' 32-pixel block
         pattern: docs/model-card.md, "Block pattern"); placement i starts the grid i * patch / shifts cells
-        up and left of the volume (its border cells repeated to fill the patches) and is cropped back."""
+        up and left of the volume and is cropped back (:meth:`_placed_logits`)."""
         ph, pw = self.down[0].kernel_size[1:]
-        H, W = volume.shape[-2:]
         total = None
         for i in range(self.shifts):
-            sy, sx = i * ph // self.shifts, i * pw // self.shifts
-            if sy or sx:
-                padded = F.pad(volume, (sx, (pw - sx) % pw, sy, (ph - sy) % ph, 0, 0), mode="replicate")
-                logits = self._logits(padded)[..., sy:sy + H, sx:sx + W]
-            else:
-                logits = self._logits(volume)
+            logits = self._placed_logits(volume, i * ph // self.shifts, i * pw // self.shifts)
             total = logits if total is None else total.add_(logits)
         return total.div_(self.shifts)

@@ -131,6 +131,11 @@ class TrainConfig:
     by up to its half-width) instead of the previous stage's estimate: the truth then lies inside every fine
     stage's window, so they train on all pixels, not only where the coarser stages were right (0: the
     reference's training)."""
+    cvt_random_placement: bool = False
+    """Run stage 1's transformer on its token grid placed at a random whole-cell offset (0-3 cells up and
+    left, border cells repeated, the logits cropped back) at every training step, instead of always at the
+    volume's corner: no position inside a 4x4-cell patch is then special to the network, and every placement
+    that inference averages (``cvt_shifts``) is one it was trained on (False: the reference's training)."""
     train_stages: int = 4
     """Cascade stages a training step runs and scores (1-4): fewer trains the coarse stages alone at a
     fraction of the cost (the later stages are frozen; validation still runs all four)."""

@@ -55,7 +55,8 @@ def init_fmt_xavier(model: MVSFormerPP) -> None:
 
 
 def build_training_model(config: TrainConfig) -> MVSFormerPP:
-    """The preset's network, FMT xavier-initialised (from scratch) or loaded from ``init_checkpoint``."""
+    """The preset's network, FMT xavier-initialised (from scratch) or loaded from ``init_checkpoint``; stage 1's
+    transformer placed at random in training when ``cvt_random_placement``."""
     from mvsformerpp.models.checkpoint import load_checkpoint
 
     torch.manual_seed(config.seed)
@@ -64,6 +65,7 @@ def build_training_model(config: TrainConfig) -> MVSFormerPP:
         init_fmt_xavier(model)
     if config.init_checkpoint:
         load_checkpoint(model, config.init_checkpoint)
+    model.fusions[0].cost_reg.random_placement = config.cvt_random_placement
     return model
 
 
