@@ -8,7 +8,8 @@
 #   tools/train_gpu.sh --dry-run OUT_DIR            # the same script on the CPU: 4 steps at 64x96
 # RECIPE=FILE trains another recipe (default configs/default-lite-synthetic-stage5.yaml). GUIDE=P sets
 # window_guide (default 0, the recipe as it is; 0.5 lets half the samples search their fine stages around
-# the true depth, the guided windows of docs/model-card.md).
+# the true depth, the guided windows of docs/model-card.md). RANDOM_PLACEMENT=true trains stage 1's
+# transformer on random placements of its token grid (cvt_random_placement, docs/model-card.md).
 # Then, on any machine: python bench/eval_default_model.py --checkpoint OUT_DIR/weights/*.safetensors
 # --calibrate --json quality.json; python tools/ship_default_weights.py ... (docs/model-card.md).
 set -euo pipefail
@@ -30,7 +31,7 @@ else
     ARGS=(--device cuda --precision bf16 --max-steps "$STEPS" --batch-size 16
           --set "num_workers=$WORKERS" --set val_every=200 --set save_every=100)
 fi
-ARGS+=(--set "window_guide=${GUIDE:-0}")
+ARGS+=(--set "window_guide=${GUIDE:-0}" --set "cvt_random_placement=${RANDOM_PLACEMENT:-false}")
 RECIPE="${RECIPE:-configs/default-lite-synthetic-stage5.yaml}"
 RESUME=()
 if [[ -f "$RUN/checkpoints/last.state.pt" ]]; then RESUME=(--resume); fi
