@@ -454,6 +454,15 @@ def test_shifted_token_grids_cancel_the_patch_border_steps(monkeypatch):
             CostVolumeTransformer(num_layers=1, shifts=bad)
 
 
+def _clamp_padded(volume: torch.Tensor, sy: int, sx: int, patch: int = 4) -> torch.Tensor:
+    """``volume`` with ``sy`` rows and ``sx`` columns of its border cells repeated before it and enough after
+    to fill whole patches (when shifted), built by index clamping, not F.pad."""
+    H, W = volume.shape[-2:]
+    iy = (torch.arange(H + (patch if sy else 0)) - sy).clamp(0, H - 1)
+    ix = (torch.arange(W + (patch if sx else 0)) - sx).clamp(0, W - 1)
+    return volume[..., iy, :][..., ix]
+
+
 def test_the_shifted_placements_see_the_volume_under_each_shift():
     """Every placement decodes the volume itself, translated: with the real transformer, the mean over the
     placements equals the mean of single passes over volumes padded by repeating their border cells
@@ -468,11 +477,7 @@ def test_the_shifted_placements_see_the_volume_under_each_shift():
         cvt.shifts = 1
         passes = []
         for s in range(4):
-            H, W = 8 + 4, 12 + 4
-            iy = (torch.arange(H if s else 8) - s).clamp(0, 7)
-            ix = (torch.arange(W if s else 12) - s).clamp(0, 11)
-            padded = volume[..., iy, :][..., ix]
-            passes.append(cvt(padded)[..., s:s + 8, s:s + 12])
+            passes.append(cvt(_clamp_padded(volume, s, s))[..., s:s + 8, s:s + 12])
     assert torch.allclose(averaged, torch.stack(passes).mean(0), atol=1e-5)
 
 
@@ -493,10 +498,8 @@ def test_training_with_random_placement_decodes_the_volume_under_a_drawn_shift()
         sy, sx = int(torch.randint(4, ())), int(torch.randint(4, ()))
         torch.manual_seed(seed)
         out = cvt(volume.clone().requires_grad_())
-        iy = (torch.arange(8 + (4 if sy else 0)) - sy).clamp(0, 7)
-        ix = (torch.arange(12 + (4 if sx else 0)) - sx).clamp(0, 11)
         cvt.random_placement = False
-        expected = cvt(volume[..., iy, :][..., ix])[..., sy:sy + 8, sx:sx + 12]
+        expected = cvt(_clamp_padded(volume, sy, sx))[..., sy:sy + 8, sx:sx + 12]
         cvt.random_placement = True
         assert torch.allclose(out, expected, atol=1e-5), (sy, sx)
         seen.add((sy, sx))
