@@ -371,7 +371,7 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
 def test_banded_decoder_level_matches_upsample_then_convolve(monkeypatch):
     """The last FPN level of prepared inference (its kernel rows convolved before the vertical
     interpolation, in row bands) equals out3(up2(t2) + inner3(conv01)) for every band layout, including
-    bands of a few rows and a last band that is shorter than the others."""
+    bands of one or a few rows and a last band that is shorter than the others."""
     from mvsformerpp.models import fpn
 
     torch.manual_seed(0)
@@ -382,10 +382,11 @@ def test_banded_decoder_level_matches_upsample_then_convolve(monkeypatch):
                    + dec.inner3(conv01)).detach()
     with torch.no_grad():
         last = dec.build_inference_forms()["last"]
-        for rows in (4, 5, 18, 64):
+        for rows, out_rows in ((4, 1), (5, 3), (18, 7), (64, 32)):
             monkeypatch.setattr(fpn, "BAND_BYTES", 4 * 64 * 26 * rows)
+            monkeypatch.setattr(fpn, "BAND_ROWS", out_rows)
             out = dec._last_level_prepared(last, t2, conv01)
-            assert torch.allclose(out, ref, atol=1e-5), rows
+            assert torch.allclose(out, ref, atol=1e-5), (rows, out_rows)
 
 
 def test_the_lean_plain_decoder_runs_channels_last_with_the_same_numbers(monkeypatch):

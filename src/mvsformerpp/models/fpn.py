@@ -54,6 +54,9 @@ class FPNEncoder(nn.Module):
 _CL = torch.channels_last
 BAND_BYTES = 1 << 24
 """Working-set size of one row band of the last decoder level in prepared inference."""
+BAND_ROWS = 32
+"""Output rows per band of that level's vertical interpolation (a band stays in the core's cache while
+its three kernel rows are added)."""
 
 
 def _conv_cl(x: torch.Tensor, wb: tuple, conv: nn.Conv2d) -> torch.Tensor:
@@ -69,6 +72,19 @@ def _out_block_cl(x: torch.Tensor, wb: tuple, block: nn.Sequential) -> torch.Ten
 def _up2(x: torch.Tensor) -> torch.Tensor:
     # The reference upsamples in fp32 with align_corners=True here.
     return F.interpolate(x.float(), scale_factor=2, mode="bilinear", align_corners=True)
+
+
+def _interpolation_matrix(size: int, src: int, device) -> torch.Tensor:
+    """[size, src]: linear interpolation from src to size samples with align_corners=True (the rows of
+    ``_up2`` along one axis), in fp32."""
+    pos = torch.arange(size, device=device, dtype=torch.float32) * ((src - 1) / (size - 1) if size > 1 else 0.0)
+    lo = pos.floor().long().clamp_(max=src - 1)
+    frac = pos - lo
+    m = torch.zeros(size, src, device=device)
+    rows = torch.arange(size, device=device)
+    m.index_put_((rows, lo), 1 - frac, accumulate=True)
+    m.index_put_((rows, (lo + 1).clamp_(max=src - 1)), frac, accumulate=True)
+    return m
 
 
 class FPNDecoder(nn.Module):
@@ -120,8 +136,11 @@ class FPNDecoder(nn.Module):
         w, b = fused_conv_bn(conv, self.out3[1], weight=torch.cat([conv.weight, w_inner], 1))
         w_up = w[:, : conv.in_channels]  # [c0, c3, 3, 3] -> its three kernel rows as one [3 c0, c3, 1, 3]
         w_rows = w_up.permute(2, 0, 1, 3).reshape(-1, conv.in_channels, 1, 3)
+        # inner3's bias is constant through the x-interpolation: each kernel row adds it as one bias (less
+        # the tap that falls on the zero padding in the first and the last column)
+        taps = torch.einsum("ocx,c->ox", w_rows[:, :, 0], inner.bias.detach())  # [3 c0, 3]
         f["last"] = (w_rows.contiguous(memory_format=_CL), w[:, conv.in_channels:].contiguous(memory_format=_CL), b,
-                     inner.bias.detach().view(1, -1, 1, 1))
+                     (taps.sum(1), taps[:, 0].view(1, -1, 1), taps[:, 2].view(1, -1, 1)))
         return f
 
     def _forward_prepared(self, forms, conv01, conv11, conv21, conv31, levels: int = 4) -> list[torch.Tensor]:
@@ -150,14 +169,15 @@ class FPNDecoder(nn.Module):
         second term is one thin convolution over the whole image. In the first, up2 = U_y U_x (separable
         bilinear, align_corners=True) and each kernel row ky acts along x only, so it commutes with U_y:
         Conv3x3(U_y S)[y] = sum over ky of U_y(R_ky)[y + ky - 1] (zero outside the image), where
-        R_ky = the 1x3 convolution of S = U_x(t2) + b_inner with kernel row ky. The three R_ky are
-        computed at t2's rows (c0 channels each, in bands of about BAND_BYTES of S), then interpolated in
-        y, shifted and summed into the output in row bands. The eval BatchNorm is folded in and Swish runs
-        in place. The same numbers up to float rounding; the largest maps are 3 c0 channels at half the
-        rows, not c3 channels at full resolution.
+        R_ky = the 1x3 convolution of S = U_x(t2) + b_inner with kernel row ky (b_inner as its bias). The
+        three R_ky are computed at t2's rows (c0 channels each, in bands of about BAND_BYTES of S), then
+        interpolated in y, shifted and summed into the output in bands of BAND_ROWS rows, each kernel row
+        as one small matrix product (the band's rows of U_y, two non-zeros a row, times a few rows of
+        R_ky). The eval BatchNorm is folded in and Swish runs in place. The same numbers up to float
+        rounding; the largest maps are 3 c0 channels at half the rows, not c3 channels at full resolution.
         """
-        w_rows, w_low, b, inner_bias = last
-        out = F.conv2d(conv01.float().contiguous(memory_format=_CL), w_low, b, padding=1)
+        w_rows, w_low, b, (rows_bias, first_tap, last_tap) = last
+        out = F.conv2d(conv01.float().contiguous(memory_format=_CL), w_low, b, padding=1).contiguous(memory_format=_CL)
         t2 = t2.float()
         N, c0, H, W = out.shape
         c3, h = t2.shape[1], t2.shape[2]
@@ -165,23 +185,27 @@ class FPNDecoder(nn.Module):
         step = max(1, BAND_BYTES // (4 * c3 * W))
         for a in range(0, h, step):
             z = min(h, a + step)
-            s = F.interpolate(t2[:, :, a:z], (z - a, W), mode="bilinear", align_corners=True).add_(inner_bias)
-            r = F.conv2d(s.contiguous(memory_format=_CL), w_rows, padding=(0, 1))  # [N, 3 c0, z - a, W]
+            s = F.interpolate(t2[:, :, a:z], (z - a, W), mode="bilinear", align_corners=True)
+            r = F.conv2d(s.contiguous(memory_format=_CL), w_rows, rows_bias, padding=(0, 1))  # [N, 3 c0, z - a, W]
+            r[:, :, :, 0].sub_(first_tap)
+            r[:, :, :, W - 1].sub_(last_tap)
             rows_k[:, :, a:z] = r.permute(0, 2, 3, 1).reshape(N, z - a, W, 3, c0).permute(3, 0, 1, 2, 4)
             del s, r
         out_rows = out.permute(0, 2, 3, 1)  # the channels-last output as NHWC rows
+        interp = _interpolation_matrix(H, h, out.device).to(out.dtype)  # U_y: [H, h], two entries a row
         scale = (h - 1) / (H - 1) if H > 1 else 0.0
-        step = max(1, BAND_BYTES // (4 * 2 * c0 * W))
-        for r0 in range(0, H, step):
-            r1 = min(H, r0 + step)
-            band = out_rows[:, r0:r1]
-            for ky in range(3):
-                y = torch.arange(r0 + ky - 1, r1 + ky - 1, device=out.device)
-                inside = ((y >= 0) & (y < H)).float()
-                src = y.clamp(0, H - 1).float() * scale
-                y0 = src.floor().long().clamp_(max=h - 1)
-                frac = src - y0
-                band.addcmul_(rows_k[ky].index_select(1, y0), ((1 - frac) * inside).view(1, -1, 1, 1))
-                band.addcmul_(rows_k[ky].index_select(1, (y0 + 1).clamp_(max=h - 1)), (frac * inside).view(1, -1, 1, 1))
-            band.mul_(torch.sigmoid(band))
+        step = max(1, min(BAND_ROWS, BAND_BYTES // (4 * 2 * c0 * W)))
+        with torch.autocast(device_type=out.device.type, enabled=False):
+            for n in range(N):
+                out_n, r_n = out_rows[n].view(H, W * c0), rows_k[:, n].view(3, h, W * c0)
+                for r0 in range(0, H, step):
+                    r1 = min(H, r0 + step)
+                    for ky in range(3):  # output rows y take U_y(R_ky) at rows p = y + ky - 1 inside the image
+                        p0, p1 = max(0, r0 + ky - 1), min(H, r1 + ky - 1)
+                        if p0 >= p1:
+                            continue
+                        s0, s1 = max(0, int(p0 * scale) - 1), min(h, int((p1 - 1) * scale) + 3)
+                        out_n[p0 - ky + 1:p1 - ky + 1].addmm_(interp[p0:p1, s0:s1], r_n[ky, s0:s1])
+                    band = out_n[r0:r1]
+                    band.mul_(torch.sigmoid(band))
         return out
