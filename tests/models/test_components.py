@@ -348,12 +348,15 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
         plain = model(imgs, proj, dv)  # not prepared: the plain modules
     monkeypatch.setattr(fpn, "BAND_BYTES", 4 * 64 * W * 8)  # bands of 8 rows
     banded = _spy(monkeypatch, regularization, "_unet_banded")
+    batched = _spy(monkeypatch, regularization, "_unet_depth_batched")
     decoder = _spy(monkeypatch, fpn.FPNDecoder, "_forward_prepared")
     assert model.prepare_for_inference() is model
     with torch.no_grad(), torch.autocast("cpu", dtype=torch.bfloat16, enabled=case == "bf16"):
         fast = model(imgs, proj, dv)
     assert prepared.is_prepared(model)
-    assert len(banded) == 3 and len(decoder) == len(imgs) * imgs.shape[1]  # the prepared forms ran
+    assert len(banded) + len(batched) == 3 and len(decoder) == len(imgs) * imgs.shape[1]  # the prepared forms ran
+    # fp32 runs the depth-batched U-Nets where this PyTorch has the accumulating convolution, bf16 the banded
+    assert len(batched) == (0 if case == "bf16" or regularization._accumulating() is None else 3)
     if case == "bf16":
         assert fast["depth"].dtype == torch.float32
         rel = (fast["depth"] - plain["depth"]).abs() / plain["depth"]
@@ -366,6 +369,33 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
     # turns the paths' float rounding (1e-6) into up to 1.4e-5 of the depth on random weights
     assert torch.allclose(fast["depth"], plain["depth"], rtol=1e-4)
     assert torch.allclose(fast["photometric_confidence"], plain["photometric_confidence"], atol=1e-5)
+
+
+@pytest.mark.parametrize("stage", [1, 2, 3])
+def test_both_prepared_unet_forms_match_the_3d_modules(stage, monkeypatch):
+    """The depth-batched U-Net (per-tap 2-D convolutions accumulated into runs of output depths, the
+    transposed levels' taps summed per depth) and the depth-banded one compute the 3-D modules' function:
+    stage 2's net (stride 2 in depth) and stages 3-4's, two samples, several depths and odd sizes, and
+    without the accumulating convolution the banded form runs instead."""
+    from mvsformerpp.models import regularization
+
+    torch.manual_seed(stage)
+    model = build_model("lite").eval()
+    _randomise_batchnorm(model, seed=stage)
+    net = model.fusions[stage].cost_reg
+    forms = net.build_inference_forms()
+    for D in ((16, 8) if stage == 1 else (8, 4, 6)):
+        x = torch.randn(2, 8, D, 24, 40)
+        with torch.no_grad():
+            ref = regularization._unet_forward(net, x)
+            for form in (regularization._unet_banded, regularization._unet_depth_batched):
+                if form is regularization._unet_depth_batched and regularization._accumulating() is None:
+                    continue
+                out = form(net, forms, x)
+                assert out.shape == ref.shape == (2, 1, D, 24, 40)
+                assert torch.allclose(out, ref, atol=1e-5 * ref.abs().max().item()), (form.__name__, D)
+    monkeypatch.setattr(regularization, "_ACCUMULATE", [None])  # a PyTorch build without the operator
+    assert not net.build_inference_forms()["depth_batched"]
 
 
 def test_banded_decoder_level_matches_upsample_then_convolve(monkeypatch):

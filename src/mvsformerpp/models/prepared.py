@@ -7,8 +7,8 @@ rounding) in forms that are faster on the CPU and lighter on memory:
 * every eval BatchNorm folded into the convolution before it (``fuse_conv_bn_weights``), weights in
   channels-last memory, where oneDNN runs the thin full-resolution convolutions about twice as fast
   (FPN encoder and decoder, SVA upsampler, visibility networks);
-* the 3-D U-Nets of stages 2-4 as depth-banded 2-D convolutions (:mod:`.regularization`), the last FPN
-  level in row bands (:mod:`.fpn`);
+* the 3-D U-Nets of stages 2-4 as 2-D convolutions: over the depths as a batch, one per depth tap,
+  or depth-banded (:mod:`.regularization`); the last FPN level in row bands (:mod:`.fpn`);
 * activations, residual sums and cost-volume buffers in place, images one at a time through the FPN
   and the FMT pathway, features freed as soon as they are used. This part needs no derived weights,
   so a plain ``model.eval()`` forward under ``torch.no_grad()`` runs it too (:func:`lean`): the
