@@ -375,8 +375,9 @@ def test_prepared_inference_matches_the_plain_modules(case, monkeypatch):
 def test_both_prepared_unet_forms_match_the_3d_modules(stage, monkeypatch):
     """The depth-batched U-Net (per-tap 2-D convolutions accumulated into runs of output depths, the
     transposed levels' taps summed per depth) and the depth-banded one compute the 3-D modules' function:
-    stage 2's net (stride 2 in depth) and stages 3-4's, two samples, several depths and odd sizes, and
-    without the accumulating convolution the banded form runs instead."""
+    stage 2's net (stride 2 in depth) and stages 3-4's, two samples, several depths and odd sizes, the
+    transposed levels' taps whole or in chunks of one or two input depths, and without the accumulating
+    convolution the banded form runs instead."""
     from mvsformerpp.models import regularization
 
     torch.manual_seed(stage)
@@ -388,12 +389,15 @@ def test_both_prepared_unet_forms_match_the_3d_modules(stage, monkeypatch):
         x = torch.randn(2, 8, D, 24, 40)
         with torch.no_grad():
             ref = regularization._unet_forward(net, x)
-            for form in (regularization._unet_banded, regularization._unet_depth_batched):
-                if form is regularization._unet_depth_batched and regularization._accumulating() is None:
-                    continue
-                out = form(net, forms, x)
+            outs = {"banded": regularization._unet_banded(net, forms, x)}
+            if regularization._accumulating() is not None:
+                # taps at once; one input depth per chunk; two of conv9's (12x20, 3 x 16 channels), four of conv7's
+                for budget in (1 << 40, 1, 2 * 4 * 2 * 48 * 12 * 20):
+                    monkeypatch.setattr(regularization, "TAPS_BYTES", budget)
+                    outs[f"batched, {budget} bytes of taps"] = regularization._unet_depth_batched(net, forms, x)
+            for form, out in outs.items():
                 assert out.shape == ref.shape == (2, 1, D, 24, 40)
-                assert torch.allclose(out, ref, atol=1e-5 * ref.abs().max().item()), (form.__name__, D)
+                assert torch.allclose(out, ref, atol=1e-5 * ref.abs().max().item()), (form, D)
     monkeypatch.setattr(regularization, "_ACCUMULATE", [None])  # a PyTorch build without the operator
     assert not net.build_inference_forms()["depth_batched"]
 

@@ -276,33 +276,59 @@ def _conv_level(forms: dict, name: str, y: torch.Tensor, B: int, relu: bool) -> 
     return out.relu_() if relu else out
 
 
+TAPS_BYTES = 1 << 27
+"""Working-set size of the stacked taps of a transposed level in the depth-batched form: larger volumes
+run their input depths in chunks of about this many bytes of taps."""
+
+
 def _transposed_level(forms: dict, name: str, y: torch.Tensor, B: int, skip: torch.Tensor) -> torch.Tensor:
-    """A transposed level, its ReLU, then + ``skip``, on depth-batched maps, channels-last."""
+    """A transposed level, its ReLU, then + ``skip``, on depth-batched maps, channels-last. The stacked
+    taps of a chunk of input depths are summed into the output depths they reach; an output depth is
+    finished (bias, ReLU, skip) once its last term is in."""
     conv, _, bias = forms[name]
     D = y.shape[0] // B
     K, s, p = conv.kernel_size[0], conv.stride[0], conv.padding[0]
     n_out = (D - 1) * s - 2 * p + K + conv.output_padding[0]
-    taps = F.conv_transpose2d(y, _stacked(forms, name), stride=conv.stride[1:], padding=conv.padding[1:],
-                              output_padding=conv.output_padding[1:])
-    _, KC, h, w = taps.shape
-    taps = taps.permute(0, 2, 3, 1).view(B, D, h, w, K, KC // K)  # NHWC rows, the taps split
-    out = taps.new_empty(B, n_out, h, w, KC // K)
+    terms = [[(d, k) for d in range(D) for k in range(K) if s * d + k - p == j] for j in range(n_out)]
+    w = _stacked(forms, name)
+    y5 = y.unflatten(0, (B, D))
     skip = skip.permute(0, 2, 3, 1).unflatten(0, (B, n_out))
+    out, started = None, [False] * n_out
+    per_depth = 4 * B * w.shape[1] * skip.shape[2] * skip.shape[3]  # bytes of one input depth's taps
+    step = max(1, min(D, TAPS_BYTES // per_depth))
+    for a in range(0, D, step):
+        b = min(D, a + step)
+        taps = F.conv_transpose2d(y5[:, a:b].flatten(0, 1).contiguous(memory_format=torch.channels_last), w,
+                                  stride=conv.stride[1:], padding=conv.padding[1:],
+                                  output_padding=conv.output_padding[1:])
+        _, KC, h, w_ = taps.shape
+        taps = taps.permute(0, 2, 3, 1).view(B, b - a, h, w_, K, KC // K)  # NHWC rows, the taps split
+        if out is None:
+            out = taps.new_empty(B, n_out, h, w_, KC // K)
+        for j in range(n_out):
+            mine = [taps[:, d - a, :, :, k] for d, k in terms[j] if a <= d < b]
+            if not mine:
+                continue
+            o = out[:, j]
+            if started[j]:
+                o.add_(mine[0])
+            elif len(mine) >= 2:
+                torch.add(mine[0], mine.pop(1), out=o)
+            else:
+                o.copy_(mine[0])
+            started[j] = True
+            for term in mine[1:]:
+                o.add_(term)
+            if max(d for d, _ in terms[j]) < b:  # its last term is in: finish it
+                if bias is not None:
+                    o.add_(bias)
+                o.relu_().add_(skip[:, j])
+        del taps
     for j in range(n_out):
-        terms = [taps[:, d, :, :, k] for k in range(K) for d in range(D) if s * d + k - p == j]
-        o = out[:, j]
-        if len(terms) >= 2:
-            torch.add(terms[0], terms[1], out=o)
-        elif terms:
-            o.copy_(terms[0])
-        else:
-            o.zero_()
-        for term in terms[2:]:
-            o.add_(term)
-        if bias is not None:
-            o.add_(bias)
-        o.relu_().add_(skip[:, j])
-    return out.view(B * n_out, h, w, -1).permute(0, 3, 1, 2)
+        if not terms[j]:  # reached by no tap (not in these networks): the bias alone
+            out[:, j] = 0 if bias is None else bias
+            out[:, j].relu_().add_(skip[:, j])
+    return out.view(B * n_out, *out.shape[2:]).permute(0, 3, 1, 2)
 
 
 def _unet_depth_batched(net: nn.Module, forms: dict, x: torch.Tensor) -> torch.Tensor:
