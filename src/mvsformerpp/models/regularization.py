@@ -261,13 +261,10 @@ def _conv_level(forms: dict, name: str, y: torch.Tensor, B: int, relu: bool) -> 
     n_out, runs = _tap_runs(conv, D)
     s, stride, pad = conv.stride[0], list(conv.stride[1:]), list(conv.padding[1:])
     y5 = y.unflatten(0, (B, D))
-
-    def inputs(i0, n):  # input depths i0, i0 + s, ..., n of them, [B*n, C, H, W] channels-last
-        return y5[:, i0:i0 + s * n:s].flatten(0, 1).contiguous(memory_format=torch.channels_last)
-
     (k, _, _, i0), accumulate = runs[0], _accumulating()
-    out = F.conv2d(inputs(i0, n_out), w[k], bias, stride=stride, padding=pad).contiguous(
-        memory_format=torch.channels_last)
+    first = y5[:, i0:i0 + s * n_out:s].flatten(0, 1).contiguous(memory_format=torch.channels_last)  # its inputs
+    out = F.conv2d(first, w[k], bias, stride=stride, padding=pad).contiguous(memory_format=torch.channels_last)
+    del first
     out5 = out.unflatten(0, (B, n_out))
     for k, j0, j1, i0 in runs[1:]:
         for b in range(B):  # out5[b, j0:j1] += W_k * x[b, i0::s] (one sample's run of depths is contiguous)
