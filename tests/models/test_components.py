@@ -8,7 +8,7 @@ import torch
 
 from mvsformerpp.models import build_model
 from mvsformerpp.models.attention import linear_attention, softmax_attention
-from mvsformerpp.models.cvt import adaptive_attention_scale, frustum_coordinates, sine_encoding_3d
+from mvsformerpp.models.cvt import CVTAttention, adaptive_attention_scale, frustum_coordinates, sine_encoding_3d
 from mvsformerpp.models.dinov2 import DinoVisionTransformer
 from mvsformerpp.models.fmt import sine_position_encoding_2d
 from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
@@ -296,6 +296,59 @@ def test_cpu_bf16_flags_read_the_cpuinfo_flags(monkeypatch):
     finally:
         monkeypatch.undo()
         precision.cpu_bf16_flags.cache_clear()
+
+
+def test_stage1_attention_in_bf16_inside_an_fp32_forward(monkeypatch):
+    """set_attention_precision("bf16") rounds the cost-volume transformer's q, k, v to bf16 (its attention
+    then runs in bf16, nothing else does) and keeps the forward's outputs in fp32, close to the fp32 ones;
+    "fp32" restores it; other names are refused."""
+    from mvsformerpp.models import cvt
+
+    model = build_model("lite").eval()
+    imgs, proj, dv = _random_batch(1, 3, 64, 96)
+    with torch.no_grad():
+        ref = model(imgs, proj, dv)
+    seen = []
+    original = cvt.softmax_attention
+    monkeypatch.setattr(cvt, "softmax_attention", lambda q, k, v, **kw: seen.append(q.dtype) or original(q, k, v, **kw))
+    model.set_attention_precision("bf16")
+    with torch.no_grad():
+        out = model(imgs, proj, dv)
+    assert seen and set(seen) == {torch.bfloat16}
+    assert out["depth"].dtype == torch.float32 and out["stage1"]["prob_volume_pre"].dtype == torch.float32
+    assert not torch.equal(out["stage1"]["prob_volume_pre"], ref["stage1"]["prob_volume_pre"])  # it did round
+    rel = (out["depth"] - ref["depth"]).abs() / ref["depth"]
+    assert rel.median() < 1e-3
+    seen.clear()
+    model.set_attention_precision("fp32")
+    with torch.no_grad():
+        again = model(imgs, proj, dv)
+    assert set(seen) == {torch.float32} and torch.allclose(again["depth"], ref["depth"])
+    with pytest.raises(ValueError, match="attention precision"):
+        model.set_attention_precision("fp16")
+
+
+def test_auto_precision_takes_bf16_attention_only_for_lite_on_cpus_with_amx(monkeypatch):
+    """``auto``: fp32 with the stage-1 attention in bf16 for the lite network on a CPU with AMX; plain fp32
+    without AMX, on a GPU, for the paper network and at ``fp32``; the runner sets the network as told."""
+    from mvsformerpp.inference.runner import SceneInference
+    from mvsformerpp.utils import precision
+
+    for flags, amx in (({"avx512_bf16", "amx_bf16"}, True), ({"avx512_bf16"}, False), (set(), False)):
+        monkeypatch.setattr(precision, "cpu_bf16_flags", lambda flags=flags: frozenset(flags))
+        assert precision.attention_in_bf16("cpu", "auto", "lite") is amx
+        assert precision.attention_in_bf16("cpu", "auto", "paper") is False
+        assert precision.attention_in_bf16("cuda", "auto", "lite") is False
+        assert precision.attention_in_bf16("cpu", "fp32", "lite") is False
+        assert precision.describe_precision("cpu", "auto", "lite") == ("auto: fp32, stage-1 attention in bf16" if amx
+                                                                       else "auto: fp32")
+        assert precision.describe_precision("cpu", "bf16", "lite") == "bf16"
+    with pytest.raises(ValueError, match="precision must be one of"):
+        precision.attention_in_bf16("cpu", "fp8", "lite")
+    model = build_model("lite")
+    for on in (True, False):
+        SceneInference(model, None, [], None, num_views=3, attention_bf16=on)
+        assert all(m.bf16 is on for m in model.modules() if isinstance(m, CVTAttention))
 
 
 def _randomise_batchnorm(model, seed=5):

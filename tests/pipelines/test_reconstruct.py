@@ -90,6 +90,10 @@ def test_end_to_end_temple_with_the_lite_network(scene4, tmp_path):
     assert (out / "fused.ply").read_bytes().startswith(b"ply\nformat binary_little_endian")
     saved = json.loads((out / "config.json").read_text())
     assert saved["config"]["preset"] == "lite" and saved["resolved"]["canvas"] == [128, 96]  # 4:3, no padding
+    from mvsformerpp.utils.precision import describe_precision
+
+    assert saved["config"]["precision"] == "auto"  # the default, recorded with what it resolved to here
+    assert saved["resolved"]["precision"] == describe_precision("cpu", "auto", "lite")
     assert json.loads((out / "summary.json").read_text())["views"] == 4
     assert not list(out.rglob("*.tmp"))
 

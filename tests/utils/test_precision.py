@@ -1,4 +1,4 @@
-"""The shared autocast helper: fp32 runs plain, bf16 autocasts, unknown names are refused."""
+"""The shared autocast helper: fp32 and auto run plain, bf16 autocasts, unknown names are refused."""
 
 from __future__ import annotations
 
@@ -14,7 +14,9 @@ def test_autocast_dtypes():
         assert (a @ a).dtype == torch.float32
     with autocast(torch.device("cpu"), "bf16"):
         assert (a @ a).dtype == torch.bfloat16
-    assert sorted(PRECISIONS) == ["bf16", "fp16", "fp32"]
+    with autocast("cpu", "auto"):  # fp32 under no autocast; only the stage-1 attention may take bf16
+        assert (a @ a).dtype == torch.float32
+    assert sorted(PRECISIONS) == ["auto", "bf16", "fp16", "fp32"]
 
 
 def test_unknown_precision_refused():

@@ -58,14 +58,18 @@ class SceneInference:
     The runner prepares ``model`` for inference (:mod:`mvsformerpp.models.prepared`).
     ``load_image(i)`` returns view ``i``'s uint8 ``[H,W,3]`` photo at its original size.
     ``cache_bytes=0`` disables the cache: ``forward`` then encodes every image of every view set.
+    ``attention_bf16``: the network's stage-1 transformer attention in bf16 inside an fp32 forward
+    (``set_attention_precision``, where the network has it; ``reconstruct --precision auto`` decides).
     """
 
     def __init__(self, model: torch.nn.Module, scene: Scene, plans: list[ViewResize], load_image,
                  num_views: int, num_depth: int = 192, temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0),
                  device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30,
-                 output_resolution: str = "original"):
+                 output_resolution: str = "original", attention_bf16: bool = False):
         check_precision(precision)
         self.model = prepared.prepare(model)  # eval mode with the inference forms built, once
+        if callable(getattr(model, "set_attention_precision", None)):
+            model.set_attention_precision("bf16" if attention_bf16 else "fp32")
         self.scene = scene
         self.plans = plans
         self.load_image = load_image

@@ -84,13 +84,18 @@ class CVTAttention(nn.Module):
         self.qkv = nn.Linear(dim, dim * 3, bias=False)
         self.proj = nn.Linear(dim, dim)
         self.backend = "sdpa"
+        self.bf16 = False
+        """Softmax attention in bf16 inside an fp32 forward (``MVSFormerPP.set_attention_precision``)."""
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         B, N, C = x.shape
         hd = C // self.num_heads
         qkv = self.qkv(x).reshape(B, N, 3, self.num_heads, hd).permute(2, 0, 3, 1, 4)
         scale = adaptive_attention_scale(hd, N, self.train_avg_tokens)
-        out = softmax_attention(qkv[0], qkv[1], qkv[2], scale=scale, backend=self.backend)
+        in_bf16 = self.bf16 and qkv.dtype == torch.float32  # (under an autocast it follows the autocast)
+        out = softmax_attention(*(qkv.bfloat16() if in_bf16 else qkv), scale=scale, backend=self.backend)
+        if in_bf16:
+            out = out.float()
         return self.proj(out.transpose(1, 2).reshape(B, N, C))
 
 

@@ -9,7 +9,7 @@ from torch import nn
 from mvsformerpp.models import prepared
 from mvsformerpp.models.config import ModelConfig
 from mvsformerpp.models.cost_volume import StageNet
-from mvsformerpp.models.cvt import frustum_coordinates
+from mvsformerpp.models.cvt import CVTAttention, frustum_coordinates
 from mvsformerpp.models.dinov2 import DinoVisionTransformer
 from mvsformerpp.models.features import ImageFeatures, decode_views, encode_images
 from mvsformerpp.models.fmt import FMTWithPathway
@@ -83,6 +83,16 @@ class MVSFormerPP(nn.Module):
         for m in self.modules():
             if hasattr(m, "backend"):
                 m.backend = backend
+
+    def set_attention_precision(self, precision: str) -> None:
+        """The stage-1 cost-volume transformer's softmax attention in ``bf16`` (q, k and v rounded to bf16,
+        the result back in fp32) inside an fp32 forward, or in ``fp32`` (the default). Under an autocast
+        the attention follows the autocast whatever this says."""
+        if precision not in ("fp32", "bf16"):
+            raise ValueError(f"attention precision must be 'fp32' or 'bf16', got {precision!r}")
+        for m in self.modules():
+            if isinstance(m, CVTAttention):
+                m.bf16 = precision == "bf16"
 
     def encode_images(self, imgs: torch.Tensor) -> ImageFeatures:
         """Per-image work for [N, 3, H, W] ImageNet-normalised images (H, W multiples of 32)."""

@@ -20,6 +20,7 @@ from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes,
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings, weights_id, weights_name
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+from mvsformerpp.utils.precision import describe_precision
 
 log = logging.getLogger(__name__)
 
@@ -91,7 +92,8 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
     weights = None
     if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
-    settings = {**config.result_settings(), **resolved}
+    settings = {**config.result_settings(), **resolved,
+                "precision": describe_precision(device, config.precision, config.preset)}
     if not given_model:  # the preset's network as built for this run (a given network is the caller's)
         settings["network"] = network_settings(config)
     keys = view_fingerprints(scene, config.num_views, settings, weights)

@@ -8,8 +8,11 @@ from pathlib import Path
 
 import torch
 
-PRECISIONS: dict[str, torch.dtype | None] = {"fp32": None, "bf16": torch.bfloat16, "fp16": torch.float16}
-"""Precision name -> autocast dtype (None: plain fp32, no autocast)."""
+PRECISIONS: dict[str, torch.dtype | None] = {"auto": None, "fp32": None, "bf16": torch.bfloat16,
+                                              "fp16": torch.float16}
+"""Precision name -> autocast dtype (None: no autocast). ``auto`` is fp32, with the cost-volume
+transformer's softmax attention in bf16 where that was measured to be faster at no cost
+(:func:`attention_in_bf16`)."""
 
 
 def check_precision(precision: str) -> str:
@@ -50,3 +53,21 @@ def cpu_attention_in_bf16() -> bool:
     """Whether PyTorch's CPU attention gains from bf16 here: on CPUs with AMX tiles (about 1.3x faster than
     fp32 on a Xeon with ``amx_bf16``); with AVX-512 alone it is slower in bf16 than in fp32."""
     return "amx_bf16" in cpu_bf16_flags()
+
+
+def attention_in_bf16(device: str | torch.device, precision: str, preset: str) -> bool:
+    """Whether a run of network ``preset`` at ``precision`` on ``device`` takes the stage-1 cost-volume
+    transformer's softmax attention in bf16 inside an otherwise fp32 network: ``auto`` with the ``lite``
+    network on a CPU with AMX, where PyTorch's attention runs about 1.4x faster in bf16 and the depth maps
+    were measured to move by at most about 0.1 % of the depth range (README, Benchmarks); plain fp32 on
+    other devices and CPUs, and for the ``paper`` network, whose error in bf16 has no trained weights to
+    be measured with."""
+    return (check_precision(precision) == "auto" and preset == "lite" and torch.device(device).type == "cpu"
+            and cpu_attention_in_bf16())
+
+
+def describe_precision(device: str | torch.device, precision: str, preset: str) -> str:
+    """``precision`` as it runs: ``auto`` names what it resolves to."""
+    if check_precision(precision) != "auto":
+        return precision
+    return "auto: fp32, stage-1 attention in bf16" if attention_in_bf16(device, precision, preset) else "auto: fp32"

@@ -171,7 +171,7 @@ def collect(run: RunFolder) -> dict[str, Any]:
         "checkpoint": cfg.get("checkpoint"),
         "weights": resolved.get("weights") or _weights_of_old_run(cfg),
         "device": cfg.get("device"),
-        "precision": cfg.get("precision"),
+        "precision": resolved.get("precision") or cfg.get("precision"),
         "views_per_depth_map": cfg.get("num_views"),
         "fusion": cfg.get("fusion"),
         "fusion_threshold": fusion_threshold(run),
