@@ -389,3 +389,32 @@ def test_photos_larger_than_the_working_size_fuse_at_the_working_size(scene4, tm
     assert len(ply_points(read_ply(tmp_path / "again.ply"))) == working["points"]
     assert main(["fuse", str(tmp_path / "w"), "-o", str(tmp_path / "full.ply"), "--max-size", "0", "--quiet"]) == 0
     assert len(ply_points(read_ply(tmp_path / "full.ply"))) == original["points"]
+
+
+def test_auto_precision_takes_bf16_attention_for_the_presets_network_only(tmp_path, monkeypatch):
+    """On a CPU with AMX, ``auto`` runs the lite preset's own network with its stage-1 attention in bf16
+    and records it; a network passed by the caller runs in plain fp32 under ``auto`` (its architecture is
+    the caller's), and config.json says so."""
+    needs_network()
+    from mvsformerpp import build_model
+    from mvsformerpp.models.cvt import CVTAttention
+    from mvsformerpp.pipelines import depth_maps
+    from mvsformerpp.utils import precision
+
+    monkeypatch.setattr(precision, "cpu_bf16_flags", lambda: frozenset({"avx512_bf16", "amx_bf16"}))
+    seen = []
+    original = depth_maps.SceneInference
+
+    def spy(net, *args, **kw):
+        seen.append(kw["attention_bf16"])
+        return original(net, *args, **kw)
+
+    monkeypatch.setattr(depth_maps, "SceneInference", spy)
+    scene = temple_subset(tmp_path / "temple", [1, 2, 3])
+    reconstruct(scene, tmp_path / "own", FAST, quiet=True)
+    given = build_model("lite")
+    reconstruct(scene, tmp_path / "given", FAST, quiet=True, model=given)
+    assert seen == [True, False]
+    assert not any(m.bf16 for m in given.modules() if isinstance(m, CVTAttention))
+    records = [json.loads((tmp_path / d / "config.json").read_text()) for d in ("own", "given")]
+    assert [r["resolved"]["precision"] for r in records] == ["auto: fp32, stage-1 attention in bf16", "auto: fp32"]

@@ -18,7 +18,6 @@ from mvsformerpp.inference.runner import SceneInference
 from mvsformerpp.io.output_folder import CONFIG, VIEWS, OutputFolder, disk_full_guard
 from mvsformerpp.pipelines.run_plan import RunPlan
 from mvsformerpp.pipelines.scene_input import working_scene
-from mvsformerpp.utils.precision import attention_in_bf16, describe_precision
 
 
 @dataclass(frozen=True)
@@ -51,10 +50,9 @@ def write_layout(folder: OutputFolder, plan: RunPlan) -> list[int]:
             else:
                 folder.link_image(i, v.image_path)
     folder.write_json(VIEWS, {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
-    precision = describe_precision(plan.device, config.precision, config.preset)
     folder.write_json(CONFIG, {"config": dataclasses.asdict(config),
                                       "resolved": {**plan.resolved, "fusion_conf": plan.fusion_conf,
-                                                   "weights": plan.weights, "precision": precision},
+                                                   "weights": plan.weights, "precision": plan.precision},
                                       "scene_fingerprint": plan.fingerprint, "input": str(plan.input_path.resolve()),
                                       "source_format": plan.source_format, "num_views_in_input": plan.input_views})
     todo = [i for i in range(len(scene)) if not folder.view_done(i, plan.keys[i])]
@@ -72,7 +70,7 @@ def start_inference(plan: RunPlan, net: torch.nn.Module, todo: list[int]) -> tup
                             num_views=config.num_views, num_depth=config.num_depth,
                             temperatures=config.temperatures, device=plan.device, precision=config.precision,
                             cache_bytes=config.cache_mb << 20, output_resolution=config.output_resolution,
-                            attention_bf16=attention_in_bf16(plan.device, config.precision, config.preset))
+                            attention_bf16=plan.attention_bf16)
     return runner, runner.schedule(todo)
 
 

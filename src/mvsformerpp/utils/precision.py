@@ -55,7 +55,7 @@ def cpu_attention_in_bf16() -> bool:
     return "amx_bf16" in cpu_bf16_flags()
 
 
-def attention_in_bf16(device: str | torch.device, precision: str, preset: str) -> bool:
+def attention_in_bf16(device: str | torch.device, precision: str, preset: str | None) -> bool:
     """Whether a run of network ``preset`` at ``precision`` on ``device`` takes the stage-1 cost-volume
     transformer's softmax attention in bf16 inside an otherwise fp32 network: ``auto`` with the ``lite``
     network on a CPU with AMX, where PyTorch's attention runs about 1.4x faster in bf16 and the depth maps
@@ -66,8 +66,9 @@ def attention_in_bf16(device: str | torch.device, precision: str, preset: str) -
             and cpu_attention_in_bf16())
 
 
-def describe_precision(device: str | torch.device, precision: str, preset: str) -> str:
-    """``precision`` as it runs: ``auto`` names what it resolves to."""
+def describe_precision(device: str | torch.device, precision: str, preset: str | None) -> str:
+    """``precision`` as it runs for network ``preset`` (None: a network of the caller's): ``auto`` names
+    what it resolves to."""
     if check_precision(precision) != "auto":
         return precision
     return "auto: fp32, stage-1 attention in bf16" if attention_in_bf16(device, precision, preset) else "auto: fp32"
