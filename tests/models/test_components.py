@@ -451,7 +451,7 @@ def test_both_prepared_unet_forms_match_the_3d_modules(stage, monkeypatch):
             for form, out in outs.items():
                 assert out.shape == ref.shape == (2, 1, D, 24, 40)
                 assert torch.allclose(out, ref, atol=1e-5 * ref.abs().max().item()), (form, D)
-    monkeypatch.setattr(regularization, "_ACCUMULATE", [None])  # a PyTorch build without the operator
+    monkeypatch.setattr(regularization, "_accumulating", lambda: None)  # a PyTorch build without the operator
     assert not net.build_inference_forms()["depth_batched"]
 
 

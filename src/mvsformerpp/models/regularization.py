@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import torch
 import torch.nn.functional as F
 from torch import nn
@@ -206,37 +208,36 @@ def _stacked(forms: dict, name: str) -> torch.Tensor:
     return forms["stacked"][name]
 
 
-_ACCUMULATE: list = []
-
-
+@functools.lru_cache(maxsize=1)
 def _accumulating():
     """oneDNN's convolution that adds its result into a given channels-last tensor in place
     (``other += conv2d(x, w)``), as this PyTorch build exposes it (an internal operator), or None where it
     does not, or where it disagrees with ``F.conv2d`` on a probe; checked once per process."""
-    if not _ACCUMULATE:
-        op = None
-        try:
-            candidate = torch.ops.mkldnn._convolution_pointwise_.binary
-            g = torch.Generator().manual_seed(0)
-            x = torch.randn(2, 4, 5, 6, generator=g).contiguous(memory_format=torch.channels_last)
-            w = torch.randn(3, 4, 3, 3, generator=g).contiguous(memory_format=torch.channels_last)
-            other = torch.randn(2, 3, 3, 3, generator=g).contiguous(memory_format=torch.channels_last)
-            expected = other + F.conv2d(x, w, stride=2, padding=1)
-            with torch.no_grad():
-                candidate(other, x, w, None, [1, 1], [2, 2], [1, 1], 1, "add", 1.0, None, [], None)
-            if torch.allclose(other, expected, atol=1e-5):
-                op = candidate
-        except (AttributeError, RuntimeError):
-            pass
-        _ACCUMULATE.append(op)
-    return _ACCUMULATE[0]
+    try:
+        candidate = torch.ops.mkldnn._convolution_pointwise_.binary
+        g = torch.Generator().manual_seed(0)
+        x = torch.randn(2, 4, 5, 6, generator=g).contiguous(memory_format=torch.channels_last)
+        w = torch.randn(3, 4, 3, 3, generator=g).contiguous(memory_format=torch.channels_last)
+        other = torch.randn(2, 3, 3, 3, generator=g).contiguous(memory_format=torch.channels_last)
+        expected = other + F.conv2d(x, w, stride=2, padding=1)
+        with torch.no_grad():
+            candidate(other, x, w, None, [1, 1], [2, 2], [1, 1], 1, "add", 1.0, None, [], None)
+    except (AttributeError, RuntimeError):
+        return None
+    return candidate if torch.allclose(other, expected, atol=1e-5) else None
 
 
 def _depth_batched_possible(forms: dict) -> bool:
-    """Whether the depth-batched form can run a U-Net: the accumulating convolution exists and every
-    convolution level has a depth tap that reaches every output depth (an odd kernel, padded by half)."""
-    convs = [forms[name][0] for name in _LEVELS if not isinstance(forms[name][0], nn.ConvTranspose3d)]
-    return _accumulating() is not None and all(c.padding[0] == c.kernel_size[0] // 2 for c in convs)
+    """Whether the depth-batched form can run a U-Net: the accumulating convolution exists, every
+    convolution level has a depth tap that reaches every output depth (an odd kernel, padded by half),
+    and every transposed level reaches every output depth with some tap (stride <= kernel, padding
+    within the kernel, output padding <= padding)."""
+    convs = [forms[name][0] for name in _LEVELS]
+    plain = [c for c in convs if not isinstance(c, nn.ConvTranspose3d)]
+    transposed = [c for c in convs if isinstance(c, nn.ConvTranspose3d)]
+    return (_accumulating() is not None and all(c.padding[0] == c.kernel_size[0] // 2 for c in plain)
+            and all(c.stride[0] <= c.kernel_size[0] and c.padding[0] < c.kernel_size[0]
+                    and c.output_padding[0] <= c.padding[0] for c in transposed))
 
 
 def _tap_runs(conv: nn.Module, D: int) -> tuple[int, list[tuple[int, int, int, int]]]:
@@ -321,10 +322,6 @@ def _transposed_level(forms: dict, name: str, y: torch.Tensor, B: int, skip: tor
                     o.add_(bias)
                 o.relu_().add_(skip[:, j])
         del taps
-    for j in range(n_out):
-        if not terms[j]:  # reached by no tap (not in these networks): the bias alone
-            out[:, j] = 0 if bias is None else bias
-            out[:, j].relu_().add_(skip[:, j])
     return out.view(B * n_out, *out.shape[2:]).permute(0, 3, 1, 2)
 
 

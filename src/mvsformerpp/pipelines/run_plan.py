@@ -20,7 +20,7 @@ from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes,
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings, weights_id, weights_name
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
-from mvsformerpp.utils.precision import attention_in_bf16, describe_precision
+from mvsformerpp.utils.precision import attention_in_bf16, precision_name
 
 log = logging.getLogger(__name__)
 
@@ -56,8 +56,11 @@ class RunPlan:
     attention_bf16: bool = False
     """Stage 1's transformer attention in bf16 inside the fp32 network (``--precision auto``, the preset's
     own network only: a network passed by the caller runs as the precision names)."""
-    precision: str = "fp32"
-    """The precision as it runs (:func:`~mvsformerpp.utils.precision.describe_precision`)."""
+
+    @property
+    def precision(self) -> str:
+        """The precision as it runs, as config.json and the view fingerprints record it."""
+        return precision_name(self.config.precision, self.attention_bf16)
 
     @property
     def resolved(self) -> dict:
@@ -98,8 +101,7 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
     if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
     attention_bf16 = not given_model and attention_in_bf16(device, config.precision, config.preset)
-    precision = describe_precision(device, config.precision, config.preset if not given_model else None)
-    settings = {**config.result_settings(), **resolved, "precision": precision}
+    settings = {**config.result_settings(), **resolved, "precision": precision_name(config.precision, attention_bf16)}
     if not given_model:  # the preset's network as built for this run (a given network is the caller's)
         settings["network"] = network_settings(config)
     keys = view_fingerprints(scene, config.num_views, settings, weights)
@@ -108,7 +110,7 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
                    keys=keys,
                    weights="a network passed to reconstruct()" if given_model else weights_name(config),
                    fusion_conf=config.fusion_conf if given_model else fusion_conf_for(config),
-                   attention_bf16=attention_bf16, precision=precision)
+                   attention_bf16=attention_bf16)
 
 
 def working_long_side(scene: Scene, config: ReconstructConfig, device: torch.device) -> int:

@@ -69,6 +69,11 @@ def attention_in_bf16(device: str | torch.device, precision: str, preset: str | 
 def describe_precision(device: str | torch.device, precision: str, preset: str | None) -> str:
     """``precision`` as it runs for network ``preset`` (None: a network of the caller's): ``auto`` names
     what it resolves to."""
+    return precision_name(precision, attention_in_bf16(device, precision, preset))
+
+
+def precision_name(precision: str, attention_bf16: bool) -> str:
+    """``precision`` with what ``auto`` resolved to, given that decision (:func:`attention_in_bf16`)."""
     if check_precision(precision) != "auto":
         return precision
-    return "auto: fp32, stage-1 attention in bf16" if attention_in_bf16(device, precision, preset) else "auto: fp32"
+    return "auto: fp32, stage-1 attention in bf16" if attention_bf16 else "auto: fp32"
