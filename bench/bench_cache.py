@@ -88,8 +88,10 @@ def main() -> None:
         print(f"| {name} | {r['seconds']:.2f} | {r['views_per_s']:.3f} | {r['images_encoded']} |")
     print(f"\nspeed-up with the cache: {speedup:.2f}x")
     if args.json:
-        args.json.write_text(json.dumps({"args": vars(args) | {"json": str(args.json)}, "canvas": canvas,
-                                         "device": dev, "results": results, "speedup": speedup}, indent=2))
+        from mvsformerpp.utils.atomic import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps({"args": vars(args) | {"json": str(args.json)}, "canvas": canvas,
+                                                "device": dev, "results": results, "speedup": speedup}, indent=2))
 
 
 if __name__ == "__main__":

@@ -178,7 +178,9 @@ def main() -> None:
               f"{r['feature_cache']['hits']} hits / {r['feature_cache']['misses']} misses"
               + (f", peak {r['peak_allocated_mb']:.0f} MB" if "peak_allocated_mb" in r else ""))
     if a.json:
-        Path(a.json).write_text(json.dumps({"paper": PAPER, "forward": rows, "reconstruct": recon}, indent=2))
+        from mvsformerpp.utils.atomic import atomic_write_text
+
+        atomic_write_text(Path(a.json), json.dumps({"paper": PAPER, "forward": rows, "reconstruct": recon}, indent=2))
 
 
 if __name__ == "__main__":

@@ -69,6 +69,10 @@ def main() -> None:
     ap.add_argument("--size", type=int, nargs=2, default=(480, 640), metavar=("H", "W"))
     ap.add_argument("--json", type=Path, help="write the rows here")
     a = ap.parse_args()
+    if a.precisions[0] == a.precisions[1]:
+        ap.error(f"--precisions needs two different precisions to compare, got {a.precisions[0]} twice")
+    if a.scenes < 1 or a.rounds < 1:
+        ap.error(f"--scenes and --rounds must be at least 1, got {a.scenes} and {a.rounds}")
     rows = []
     with tempfile.TemporaryDirectory() as tmp:
         work = Path(tmp)

@@ -110,7 +110,9 @@ def main() -> None:
         print(f"{r['processes']} process(es) x {r['threads']} thread(s): {r['seconds']:.1f} s, peak RSS "
               f"{r['peak_rss_mb_per_process']:.0f} MB per process")
     if a.json:
-        Path(a.json).write_text(json.dumps(rows, indent=2))
+        from mvsformerpp.utils.atomic import atomic_write_text
+
+        atomic_write_text(Path(a.json), json.dumps(rows, indent=2))
 
 
 if __name__ == "__main__":
