@@ -20,7 +20,7 @@ share split into flat pixels (the photo's 9x9 standard deviation under 3/255: no
 rest, with the flat pixels' share.
 
     PYTHONPATH=src python bench/degradations.py [--scenes 4] [--only jpeg painted ...] [--checkpoint PATH]
-                                                [--size 480 640] [--json PATH]
+                                                [--size 480 640] [--max-size PX] [--json PATH]
 """
 
 from __future__ import annotations
@@ -184,8 +184,13 @@ def main() -> None:
     ap.add_argument("--size", type=int, nargs=2, default=(480, 640), metavar=("H", "W"))
     ap.add_argument("--only", nargs="+", choices=CONDITIONS, help="these conditions (default: all)")
     ap.add_argument("--checkpoint", help="weights to measure (default: the shipped ones)")
+    ap.add_argument("--max-size", type=int, metavar="PX",
+                    help="working size of reconstruct (longer side; default the photos' own): the depth maps are "
+                         "compared at the photos' size, as reconstruct writes them")
     ap.add_argument("--json", help="also write the rows here")
     args = ap.parse_args()
+    if args.max_size is not None and args.max_size < 64:
+        ap.error(f"--max-size must be at least 64 pixels, got {args.max_size}")
 
     config = ReconstructConfig(preset="lite", checkpoint=args.checkpoint, num_views=args.views, fusion="normal")
     rows = []
@@ -196,7 +201,7 @@ def main() -> None:
             q = synthetic_quality(tmp, config, style="train", layout="room", scenes=args.scenes,
                                   seed=HELDOUT_SEED, num_views=args.views, height=args.size[0],
                                   width=args.size[1], plain_walls=1.0 if condition == "painted" else 0.0,
-                                  prepare=preparer(condition, HELDOUT_SEED))
+                                  prepare=preparer(condition, HELDOUT_SEED), max_size=args.max_size)
             split = flat_split(Path(tmp), args.scenes, args.views)
         row = {"condition": condition, "within_10pct_depth": q["within_10pct_depth"],
                "median_abs_rel": q["median_abs_rel"], "within_1pct": q["within_1pct"], **split}
@@ -209,7 +214,8 @@ def main() -> None:
     if args.json:
         from mvsformerpp.utils.atomic import atomic_write_text
 
-        atomic_write_text(args.json, json.dumps({"checkpoint": args.checkpoint, "rows": rows}, indent=1))
+        record = {"checkpoint": args.checkpoint, "max_size": args.max_size, "rows": rows}
+        atomic_write_text(args.json, json.dumps(record, indent=1))
 
 
 if __name__ == "__main__":

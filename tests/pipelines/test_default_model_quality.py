@@ -45,3 +45,15 @@ def test_the_prepare_hook_changes_each_scene_before_it_is_reconstructed(tmp_path
         synthetic_quality(tmp_path, ReconstructConfig(), scenes=2, num_views=3, height=48, width=64,
                           prepare=prepare)
     assert calls == ["scene_0"]
+
+
+def test_a_working_size_below_the_photos_is_measured_at_the_photos_size(tmp_path):
+    import json
+
+    from mvsformerpp.io.pfm import read_pfm
+
+    q = synthetic_quality(tmp_path, ReconstructConfig(), scenes=1, num_views=3, height=96, width=128, max_size=64)
+    resolved = json.loads((tmp_path / "recon_0" / "config.json").read_text())["resolved"]
+    assert resolved["long_side"] == 64  # the network ran at half the photos' size
+    assert read_pfm(tmp_path / "recon_0" / "depth_est" / "00000000.pfm").shape == (96, 128)  # compared at theirs
+    assert 0 < q["within_10pct_depth"] <= 1

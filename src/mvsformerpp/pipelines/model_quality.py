@@ -61,13 +61,15 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
                       seed: int = HELDOUT_SEED, num_views: int = 5, height: int = 192, width: int = 256,
                       quiet: bool = True, sensor_width: tuple[float, float] | None = None,
                       layout: str | None = None, plain_walls: float = 0.0,
-                      prepare: Callable[[Path], None] | None = None) -> dict:
+                      prepare: Callable[[Path], None] | None = None, max_size: int | None = None) -> dict:
     """Depth and cloud quality on ``scenes`` synthetic scenes of ``style`` (module docstring); with
     ``sensor_width`` the views are windows of photos that wide (real cameras' focal lengths); ``layout``
     (training style): only scenes of that layout (``room``: indoor video from a handheld camera);
     ``plain_walls`` (training style): the share of walls and ceilings painted one colour; ``prepare``:
     called with each scene's folder before it is reconstructed (to degrade its photos or change its cam
-    files as real captures differ: ``bench/degradations.py``; the truth stays as rendered). Besides
+    files as real captures differ: ``bench/degradations.py``; the truth stays as rendered); ``max_size``:
+    the working size (longer side; default the photos' own), the depth maps compared at the photos' size,
+    as ``reconstruct`` writes them. Besides
     the shares within 1 % of the range and 10 % of the depth, the median over the valid pixels of the
     relative error |d - d*| / d* (``median_abs_rel``, as indoor benchmarks report it).
 
@@ -91,7 +93,8 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
         if prepare is not None:
             prepare(scene_dir)
         rec = out / f"recon_{k}"
-        cfg = dataclasses.replace(config, max_size=max(height, width), num_views=min(config.num_views, num_views))
+        cfg = dataclasses.replace(config, max_size=max_size or max(height, width), output_resolution="original",
+                                  num_views=min(config.num_views, num_views))
         reconstruct(scene_dir, rec, cfg, quiet=quiet)
         s_within = s_within10 = s_total = 0
         depths, rel = [], []
