@@ -1,0 +1,119 @@
+"""Where a training step's gradient goes: per part of the network, the norm of its weights, the norm of its
+gradient and their ratio, on training batches of a recipe (training mode, one backward per batch, no
+optimiser step); and along the Side View Attention path (ViT tokens -> ``proj`` -> ``upsampler0`` ->
+``upsampler1`` -> added to the 1/8 CNN features), the root-mean-square of each block's output, of the
+convolution's output before its BatchNorm, and of the gradient arriving there.
+
+A part whose ratio is orders of magnitude below the others learns nothing at the recipe's learning rate,
+whatever its size: the model card's "ViT branch" measurements.
+
+    PYTHONPATH=src python bench/gradient_flow.py [--checkpoint PATH|shipped] [--config CONFIG.yaml]
+                                                 [--size 256 320] [--batches 2] [--json PATH]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+SVA_PATH = ("proj", "upsampler0", "upsampler1")
+
+
+def part_name(param: str) -> str:
+    """The part a parameter belongs to: the ViT's blocks and the cascade stages one by one, else the module."""
+    head = param.split(".")
+    return ".".join(head[:2]) if head[0] == "fusions" or head[:2] == ["vit", "blocks"] else head[0]
+
+
+def measure(checkpoint: str | None, config: str, size: tuple[int, int], batches: int) -> dict:
+    import torch
+
+    from mvsformerpp.data import SampleKey
+    from mvsformerpp.models.loss import cascade_loss
+    from mvsformerpp.models.shipped import shipped_weights_path
+    from mvsformerpp.training.config import load_config
+    from mvsformerpp.training.datasets import build_datasets
+    from mvsformerpp.training.trainer import build_training_model, collate
+
+    h, w = size
+    init = str(shipped_weights_path()) if checkpoint in (None, "shipped") else checkpoint
+    cfg = load_config(config, {"height": h, "width": w, "resolutions": [[h, w]], "device": "cpu",
+                               "init_checkpoint": init})
+    train, _ = build_datasets(cfg)
+    torch.manual_seed(cfg.seed)
+    model = build_training_model(cfg).train()
+    sva = model.decoder_vit
+    chain: dict[str, list[float]] = {}
+
+    def record(name: str):
+        def hook(_module, _inputs, out):
+            chain.setdefault(f"{name} output", []).append(float(out.detach().pow(2).mean().sqrt()))
+            out.register_hook(lambda g: chain.setdefault(f"{name} gradient", []).append(float(g.pow(2).mean().sqrt())))
+        return hook
+
+    handles = []
+    for name in SVA_PATH:
+        block = sva.get_submodule(name)
+        handles.append(block.register_forward_hook(record(name)))
+        handles.append(block[0].register_forward_hook(record(f"{name} conv (before BatchNorm)")))
+    grads: dict[str, float] = {}
+    for b in range(batches):
+        samples = [train[SampleKey(b * cfg.batch_size + j, h, w, 0)] for j in range(cfg.batch_size)]
+        batch = collate(samples)
+        model.zero_grad(set_to_none=True)
+        out = model(batch["imgs"], batch["proj_matrices"], batch["depth_values"])
+        loss, _ = cascade_loss(out, batch["depth_gt"], batch["mask"], model.config.loss_weights)
+        loss.backward()
+        for name, p in model.named_parameters():
+            if p.grad is not None:
+                grads[part_name(name)] = grads.get(part_name(name), 0.0) + float(p.grad.pow(2).sum()) / batches
+    for handle in handles:
+        handle.remove()
+    parts = {}
+    for name, p in model.named_parameters():
+        row = parts.setdefault(part_name(name), {"params": 0, "weight_norm": 0.0})
+        row["params"] += p.numel()
+        row["weight_norm"] += float(p.detach().pow(2).sum())
+    for name, row in parts.items():
+        row["weight_norm"] **= 0.5
+        row["grad_norm"] = grads.get(name, 0.0) ** 0.5 if name in grads else None
+        row["ratio"] = None if row["grad_norm"] is None else row["grad_norm"] / max(row["weight_norm"], 1e-30)
+    return {"checkpoint": checkpoint or "shipped", "config": config, "size": list(size), "batches": batches,
+            "parts": parts, "sva_path": {k: sum(v) / len(v) for k, v in chain.items()}}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--checkpoint", help="lite weights (default: the shipped ones)")
+    ap.add_argument("--config", default=str(ROOT / "configs" / "default-lite-synthetic-stage8.yaml"),
+                    help="the training recipe whose batches are used (default: phase 8's)")
+    ap.add_argument("--size", type=int, nargs=2, default=(256, 320), metavar=("H", "W"))
+    ap.add_argument("--batches", type=int, default=2)
+    ap.add_argument("--json", help="also write the numbers here")
+    args = ap.parse_args()
+    if args.batches < 1:
+        ap.error(f"--batches must be at least 1, got {args.batches}")
+    if min(args.size) < 64 or any(s % 32 for s in args.size):
+        ap.error(f"--size must be multiples of 32 of at least 64, got {args.size[0]} {args.size[1]}")
+    from mvsformerpp.utils.allocator import tune_allocator
+
+    tune_allocator()
+    r = measure(args.checkpoint, args.config, tuple(args.size), args.batches)
+    print(f"{'part':<14} {'weights':>9} {'|w|':>9} {'|g|':>10} {'|g| / |w|':>10}")
+    for name, row in sorted(r["parts"].items()):
+        g = "-" if row["grad_norm"] is None else f"{row['grad_norm']:.3e}"
+        ratio = "-" if row["ratio"] is None else f"{row['ratio']:.2e}"
+        print(f"{name:<14} {row['params']:>9} {row['weight_norm']:9.3f} {g:>10} {ratio:>10}")
+    print("Side View Attention path, root-mean-square (mean over the batches):")
+    for name, v in r["sva_path"].items():
+        print(f"  {name:<40} {v:.3e}")
+    if args.json:
+        from mvsformerpp.utils.atomic import atomic_write_text
+
+        atomic_write_text(args.json, json.dumps(r, indent=1) + "\n")
+
+
+if __name__ == "__main__":
+    main()
