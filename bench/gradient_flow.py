@@ -4,8 +4,9 @@ optimiser step); and along the Side View Attention path (ViT tokens -> ``proj`` 
 ``upsampler1`` -> added to the 1/8 CNN features), the root-mean-square of each block's output, of the
 convolution's output before its BatchNorm, and of the gradient arriving there.
 
-A part whose ratio is orders of magnitude below the others learns nothing at the recipe's learning rate,
-whatever its size: the model card's "ViT branch" measurements.
+A part whose ratio is orders of magnitude below the others is one the loss hardly depends on, whatever its
+size (AdamW still moves its weights by about the learning rate: compare two checkpoints to see that); the
+model card's "Where the training signal goes" has the numbers of the shipped weights.
 
     PYTHONPATH=src python bench/gradient_flow.py [--checkpoint PATH|shipped] [--config CONFIG.yaml]
                                                  [--size 256 320] [--batches 2] [--json PATH]
