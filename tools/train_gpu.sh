@@ -6,7 +6,8 @@
 # safetensors, scipy, scikit-image, pyyaml, pillow and tqdm: no install step, run from a checkout.
 #   tools/train_gpu.sh OUT_DIR [STEPS] [SECONDS]   # defaults: 1200 steps, stop after 540 s in any case
 #   tools/train_gpu.sh --dry-run OUT_DIR            # the same script on the CPU: 4 steps at 64x96
-# RECIPE=FILE trains another recipe (default configs/default-lite-synthetic-stage5.yaml). GUIDE=P sets
+# RECIPE=FILE trains another recipe (default configs/default-lite-synthetic-stage5.yaml;
+# configs/default-lite-synthetic-large-crops.yaml: phase 8's views at crops up to 512x640). GUIDE=P sets
 # window_guide (default 0, the recipe as it is; 0.5 lets half the samples search their fine stages around
 # the true depth, the guided windows of docs/model-card.md). RANDOM_PLACEMENT=true trains stage 1's
 # transformer on random placements of its token grid (cvt_random_placement, docs/model-card.md).
