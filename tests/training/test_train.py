@@ -107,10 +107,11 @@ def test_a_full_disk_at_the_first_save_says_to_start_again_not_to_resume(tmp_pat
     assert run_training(cfg, run)["steps"] == 1  # as advised
 
 
-def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path):
+@pytest.mark.parametrize("recipe", [None, "configs/default-lite-synthetic-large-crops.yaml"])
+def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path, recipe):
     """tools/train_gpu.sh is what a GPU machine without an install step runs: its --dry-run (the same script
-    on the CPU, a few steps of the phase-4 recipe) trains from the shipped weights and exports weights in the
-    shipped format, with the run's config and metrics beside them."""
+    on the CPU, a few steps of the phase-4 recipe, or of the recipe given as RECIPE) trains from the shipped
+    weights and exports weights in the shipped format, with the run's config and metrics beside them."""
     import os
     import subprocess
     import sys
@@ -118,7 +119,7 @@ def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path):
     from mvsformerpp.models.checkpoint import load_model
 
     root = Path(__file__).resolve().parents[2]
-    env = {**os.environ, "PY": sys.executable, "OMP_NUM_THREADS": "1"}
+    env = {**os.environ, "PY": sys.executable, "OMP_NUM_THREADS": "1", **({"RECIPE": recipe} if recipe else {})}
     done = subprocess.run(["bash", str(root / "tools" / "train_gpu.sh"), "--dry-run", str(tmp_path / "out")],
                           env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -126,6 +127,8 @@ def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path):
     assert "exported" in done.stdout and weights.is_file()
     assert load_model(weights).config.vit_depth == 6  # the lite network
     config = yaml.safe_load((tmp_path / "out" / "config.yaml").read_text())
-    assert config["resolutions"] == [[64, 96]] and config["min_overlap"] == 0.6  # the phase-4 recipe, shrunk
+    assert config["resolutions"] == [[64, 96]] and config["min_overlap"] == 0.6  # the recipe, shrunk
+    if recipe:
+        assert config["synthetic_options"]["sensor_width"] == [800, 3200] and config["micro_batch"] == 8
     rows = [json.loads(line) for line in (tmp_path / "out" / "metrics.jsonl").read_text().splitlines()]
     assert max(r["step"] for r in rows if "loss" in r) == 4
