@@ -6,7 +6,7 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
 
-from gradient_flow import measure, part_name  # noqa: E402
+from gradient_flow import measure, part_name, variance_shares  # noqa: E402
 
 
 def test_parameters_fall_into_their_parts():
@@ -20,7 +20,7 @@ def test_every_weight_counted_once_with_a_finite_gradient():
     from mvsformerpp.models.shipped import load_shipped
 
     r = measure(None, str(Path(__file__).resolve().parents[2] / "configs" / "default-lite-synthetic-stage8.yaml"),
-                (64, 96), 1)
+                (64, 96), 1, map_samples=3)
     model = load_shipped()
     assert sum(row["params"] for row in r["parts"].values()) == sum(p.numel() for p in model.parameters())
     weight_norm = math.sqrt(sum(float(p.detach().pow(2).sum()) for n, p in model.named_parameters()
@@ -31,3 +31,17 @@ def test_every_weight_counted_once_with_a_finite_gradient():
         assert row["grad_norm"] is not None and math.isfinite(row["grad_norm"]) and row["grad_norm"] > 0
         assert math.isclose(row["ratio"], row["grad_norm"] / row["weight_norm"])
     assert set(r["sva_path"]) >= {"proj output", "upsampler1 gradient", "proj conv (before BatchNorm) gradient"}
+    assert r["sva_maps"]["samples"] == 3 and 0 <= r["sva_maps"]["image_dependent"] <= 1
+
+
+def test_variance_shares_split_fixed_slot_maps_from_what_varies():
+    import torch
+
+    g = torch.Generator().manual_seed(0)
+    slot = torch.randn(1, 3, 4, 8, 8, generator=g) * 2.0  # a fixed map per view slot, variance 4
+    noise = torch.randn(200, 3, 4, 8, 8, generator=g) * 0.5  # what varies from sample to sample, variance 0.25
+    shares = variance_shares(slot + noise)
+    expected = 0.25 / (0.25 + float(slot.var(unbiased=False)))
+    assert math.isclose(shares["image_dependent"], expected, rel_tol=0.05)
+    assert math.isclose(shares["slot_maps"] + shares["image_dependent"], 1.0)
+    assert variance_shares(slot.expand(5, -1, -1, -1, -1))["image_dependent"] < 1e-12
