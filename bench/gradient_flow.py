@@ -73,7 +73,8 @@ def measure(checkpoint: str | None, config: str, size: tuple[int, int], batches:
         loss.backward()
         for name, p in model.named_parameters():
             if p.grad is not None:
-                grads[part_name(name)] = grads.get(part_name(name), 0.0) + float(p.grad.pow(2).sum()) / batches
+                part = part_name(name)
+                grads[part] = grads.get(part, 0.0) + float(p.grad.pow(2).sum()) / batches
     for handle in handles:
         handle.remove()
     slots = slot_shares(model, train, cfg.batch_size, (h, w), map_samples) if map_samples else None
@@ -84,7 +85,7 @@ def measure(checkpoint: str | None, config: str, size: tuple[int, int], batches:
         row["weight_norm"] += float(p.detach().pow(2).sum())
     for name, row in parts.items():
         row["weight_norm"] **= 0.5
-        row["grad_norm"] = grads.get(name, 0.0) ** 0.5 if name in grads else None
+        row["grad_norm"] = grads[name] ** 0.5 if name in grads else None
         row["ratio"] = None if row["grad_norm"] is None else row["grad_norm"] / max(row["weight_norm"], 1e-30)
     return {"checkpoint": checkpoint or "shipped", "config": config, "size": list(size), "batches": batches,
             "parts": parts, "sva_path": {k: sum(v) / len(v) for k, v in chain.items()}, "sva_maps": slots}
