@@ -30,6 +30,7 @@ class FakeMVSModel(torch.nn.Module):
         self.encoded = 0  # images encoded so far
         self.forwards = 0
         self.views_seen = []  # views per forward
+        self.ranges = []  # (depth_values min, max) per forward
 
     def encode_images(self, imgs: torch.Tensor) -> FakeFeatures:
         assert imgs.ndim == 4 and imgs.shape[1] == 3
@@ -44,6 +45,7 @@ class FakeMVSModel(torch.nn.Module):
         assert B == 1 and depth_values.shape[0] == 1
         self.forwards += 1
         self.views_seen.append(V)
+        self.ranges.append((float(depth_values[0, 0]), float(depth_values[0, -1])))
         if image_features is None:
             image_features = self.encode_images(imgs.flatten(0, 1))
         assert image_features.coarse.shape[0] == B * V

@@ -105,3 +105,29 @@ def test_a_changed_network_setting_recomputes_every_view(tmp_path):
     assert rewritten(cvt_shifts=other) == {0, 1, 2, 3}
     assert rewritten() == {0, 1, 2, 3}
     assert rewritten(cvt_shifts=preset) == set()
+
+
+def test_the_least_stage1_parallax_is_part_of_every_view_s_settings(tmp_path):
+    """``--min-parallax`` changes what stage 1 searches: a new value recomputes the views; asking for the
+    preset's default explicitly does not. The summary names the views whose range was widened."""
+    import dataclasses
+    import json
+
+    from mvsformerpp.pipelines.reconstruct_config import DEFAULT_MIN_PARALLAX
+
+    src, out = scene(tmp_path / "s"), tmp_path / "out"
+
+    def rewritten(**change):
+        before = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")} if out.is_dir() else {}
+        reconstruct(src, out, dataclasses.replace(FAST, **change), quiet=True, model=fake_model())
+        after = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")}
+        return {int(name[:8]) for name, ino in after.items() if before.get(name) != ino}
+
+    assert rewritten(min_parallax=4.0) == {0, 1, 2, 3}
+    widened = json.loads((out / "summary.json").read_text())["search_ranges"]
+    assert widened["min_parallax"] == 4.0 and widened["widened_views"] == [0, 1, 2, 3]
+    assert widened["median_factor"] > 1
+    assert rewritten() == {0, 1, 2, 3}
+    assert rewritten(min_parallax=DEFAULT_MIN_PARALLAX[FAST.preset]) == set()
+    assert rewritten(min_parallax=0.0) == {0, 1, 2, 3}
+    assert json.loads((out / "summary.json").read_text())["search_ranges"]["widened_views"] == []

@@ -21,6 +21,7 @@ import torch
 
 from mvsformerpp.inference.feature_cache import FeatureCache
 from mvsformerpp.inference.resolution import ViewResize
+from mvsformerpp.inference.search_range import search_range
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models import prepared
 from mvsformerpp.models.inputs import normalize, stage_projections
@@ -35,6 +36,10 @@ class ViewResult:
     confidence: np.ndarray  # [H, W] float32 in [0, 1]
     source_views: list[int]
     seconds: float
+    search_range: tuple[float, float] | None = None
+    """The depth range stage 1 searched (:mod:`.search_range`)."""
+    range_factor: float = 1.0
+    """How much that range's inverse-depth span was widened over the view's own (1: not)."""
 
 
 def select_sources(scene: Scene, ref: int, num_views: int) -> list[int]:
@@ -60,12 +65,14 @@ class SceneInference:
     ``cache_bytes=0`` disables the cache: ``forward`` then encodes every image of every view set.
     ``attention_bf16``: the network's stage-1 transformer attention in bf16 inside an fp32 forward
     (``set_attention_precision``, where the network has it; ``reconstruct --precision auto`` decides).
+    ``min_parallax``: stage 1 searches each view's depth range widened until neighbouring planes move the
+    source images by this many stage-1 pixels in all (:mod:`.search_range`; 0: the ranges as given).
     """
 
     def __init__(self, model: torch.nn.Module, scene: Scene, plans: list[ViewResize], load_image,
                  num_views: int, num_depth: int = 192, temperatures: tuple[float, ...] = (5.0, 5.0, 5.0, 1.0),
                  device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30,
-                 output_resolution: str = "original", attention_bf16: bool = False):
+                 output_resolution: str = "original", attention_bf16: bool = False, min_parallax: float = 0.0):
         check_precision(precision)
         self.model = prepared.prepare(model)  # eval mode with the inference forms built, once
         if callable(getattr(model, "set_attention_precision", None)):
@@ -81,6 +88,9 @@ class SceneInference:
         if output_resolution not in ("original", "working"):
             raise ValueError(f"output_resolution must be 'original' or 'working', got {output_resolution!r}")
         self.output_resolution = output_resolution
+        self.min_parallax = float(min_parallax)
+        config = getattr(model, "config", None)
+        self.stage1_planes = int(config.num_hypotheses[0]) if hasattr(config, "num_hypotheses") else 32
         # A network without a separate per-image encoder runs without the cache.
         self.use_cache = cache_bytes > 0 and callable(getattr(model, "encode_images", None))
         self.cache = FeatureCache(self._encode, cache_bytes)
@@ -135,7 +145,10 @@ class SceneInference:
         intr = np.stack([self.plans[i].scale_intrinsics(v.K) for i, v in zip(ids, views)])
         projs = {k: v.to(self.device) for k, v in stage_projections(extr, intr).items()}
         ref_view = self.scene.views[ref]
-        depth_values = torch.linspace(ref_view.depth_min, ref_view.depth_max, self.num_depth,
+        searched = search_range(intr[0], extr[0], list(zip(intr[1:], extr[1:])), ref_view.depth_min,
+                                ref_view.depth_max, plan.resized_width, plan.resized_height, self.min_parallax,
+                                self.stage1_planes)
+        depth_values = torch.linspace(searched.depth_min, searched.depth_max, self.num_depth,
                                       dtype=torch.float32, device=self.device)[None]
         with autocast(self.device, self.precision):
             out = self.model(imgs, projs, depth_values, self.temperatures, image_features=feats,
@@ -149,4 +162,5 @@ class SceneInference:
         conf = torch.nan_to_num(conf, nan=0.0).clamp_(0.0, 1.0)
         return ViewResult(depth=depth.cpu().numpy().astype(np.float32),
                           confidence=conf.cpu().numpy().astype(np.float32),
-                          source_views=srcs, seconds=time.perf_counter() - t0)
+                          source_views=srcs, seconds=time.perf_counter() - t0,
+                          search_range=(searched.depth_min, searched.depth_max), range_factor=searched.factor)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import torch
 
@@ -32,6 +32,8 @@ class DepthMapsDone:
     feature_cache: dict | None
     schedule: dict | None
     """The cache-friendly order's statistics (None when nothing was computed)."""
+    widened: dict[int, float] = field(default_factory=dict)
+    """Views of this rank whose stage-1 depth range was widened, with the factor (``--min-parallax``)."""
 
 
 def write_layout(folder: OutputFolder, plan: RunPlan) -> list[int]:
@@ -70,7 +72,7 @@ def start_inference(plan: RunPlan, net: torch.nn.Module, todo: list[int]) -> tup
                             num_views=config.num_views, num_depth=config.num_depth,
                             temperatures=config.temperatures, device=plan.device, precision=config.precision,
                             cache_bytes=config.cache_mb << 20, output_resolution=config.output_resolution,
-                            attention_bf16=plan.attention_bf16)
+                            attention_bf16=plan.attention_bf16, min_parallax=config.stage1_min_parallax)
     return runner, runner.schedule(todo)
 
 
@@ -90,6 +92,7 @@ def compute_depth_maps(folder: OutputFolder, plan: RunPlan, todo: list[int], mod
         return DepthMapsDone(time.perf_counter() - t0, 0, 0, None, None)
     runner, schedule = ranks.step(partial(_started, plan, model, todo))
     mine = ranks.shard(schedule["order"])
+    widened: dict[int, float] = {}
     error = None
     try:
         for i in tqdm(mine, desc="Depth maps", unit="view", disable=quiet):
@@ -98,10 +101,12 @@ def compute_depth_maps(folder: OutputFolder, plan: RunPlan, todo: list[int], mod
                 raise StoppedByOtherRank(stop)
             res = runner.infer(i)
             folder.write_view(i, res.depth, res.confidence, plan.keys[i], plan.preview_conf)
+            if res.range_factor > 1:
+                widened[i] = res.range_factor
     except Exception as e:  # (exchanged with the other ranks, then raised again)
         error = e
     ranks.outcome(error)
-    return DepthMapsDone(time.perf_counter() - t0, len(todo), len(mine), runner.cache.stats(), schedule)
+    return DepthMapsDone(time.perf_counter() - t0, len(todo), len(mine), runner.cache.stats(), schedule, widened)
 
 
 def _started(plan: RunPlan, model: torch.nn.Module | None, todo: list[int]) -> tuple[SceneInference, dict]:

@@ -15,6 +15,7 @@ layout: :mod:`mvsformerpp.io.output_folder`):
 from __future__ import annotations
 
 import dataclasses
+import statistics
 import time
 from functools import partial
 from pathlib import Path
@@ -95,7 +96,7 @@ def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ran
     done = compute_depth_maps(folder, plan, todo, model, ranks, quiet)
     timings.update(depth_s=done.seconds, views_computed=done.computed, views_reused=len(scene) - done.computed)
     per_rank = ranks.gather({"views": done.mine, "depth_s": round(done.seconds, 3),
-                             "feature_cache": done.feature_cache})
+                             "feature_cache": done.feature_cache, "widened": done.widened})
 
     # 5.-6. fusion, summary and report (rank 0)
     return ranks.broadcast(ranks.step(partial(finish, folder, plan, done, per_rank, timings, t0, quiet,
@@ -156,6 +157,7 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
         "timings": {k: round(v, 3) if isinstance(v, float) else v for k, v in timings.items()},
         "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
         "schedule": None if done.schedule is None else {k: v for k, v in done.schedule.items() if k != "order"},
+        "search_ranges": _widened_ranges(config, per_rank),
         "ranks": per_rank if distributed else None,
         "outputs": {"ply": str(ply) if points is not None else None,
                     "depth_vis": str(folder.root / DEPTH_VIS), "report": str(folder.report)},
@@ -164,6 +166,14 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
     with disk_full_guard(folder.report):
         write_report(folder.root)
     return summary
+
+
+def _widened_ranges(config, per_rank: list[dict]) -> dict:
+    """``--min-parallax`` and the views of this run whose stage-1 depth range it widened (with the median
+    factor of their inverse-depth spans)."""
+    factors = {int(v): f for r in per_rank for v, f in (r.get("widened") or {}).items()}
+    return {"min_parallax": config.stage1_min_parallax, "widened_views": sorted(factors),
+            "median_factor": statistics.median(factors.values()) if factors else None}
 
 
 def _sum_stats(stats: list[dict | None]) -> dict | None:

@@ -22,6 +22,11 @@ FUSION_CHOICES = ("normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt
 """The fusion presets of :mod:`mvsformerpp.fusion.config` (a test keeps them equal to its ``PRESETS``)."""
 
 
+DEFAULT_MIN_PARALLAX = {"lite": 0.15, "paper": 0.0}
+"""``--min-parallax`` per preset (:mod:`mvsformerpp.inference.search_range`): on for the shipped ``lite`` weights,
+whose measurements chose it; off for ``paper``, whose official weights were not measured with it."""
+
+
 @dataclass(frozen=True)
 class ReconstructConfig:
     """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
@@ -68,6 +73,11 @@ class ReconstructConfig:
     """Placements of stage 1's transformer token grid whose logits are averaged, 1-4 (default: the
     preset's: 2 for lite, 1 (the reference's) for paper): each placement's 32-pixel patches leave a
     block pattern in the depth maps that the others cancel; each one costs a pass of that transformer."""
+    min_parallax: float | None = field(default=None, metadata={"group": NETWORK, "metavar": "PX"})
+    """Least image shift, in stage-1 pixels summed over the source views, between stage 1's neighbouring
+    depth planes: a view whose depth range is too tight for its cameras' baselines is searched over a
+    range widened until its planes move the images that much (default: the preset's: 0.15 for lite,
+    0 (the ranges as given, as the reference) for paper; 0 turns it off)."""
     fusion: Literal[FUSION_CHOICES + ("none",)] = field(default="normal", metadata={"group": RUN})
     """Fusion preset (dtu, tnt_intermediate and tnt_advanced are the paper's settings, see
     ``mvsformerpp fuse``); none writes the depth maps only (fuse later with ``mvsformerpp fuse``)."""
@@ -117,17 +127,28 @@ class ReconstructConfig:
         if self.cvt_shifts is not None and not 1 <= self.cvt_shifts <= 4:
             raise InputError(f"{config_flag('cvt_shifts')} must be 1, 2, 3 or 4 placements of the token grid, "
                              f"got {self.cvt_shifts}")
+        if self.min_parallax is not None and not (math.isfinite(self.min_parallax) and 0 <= self.min_parallax <= 4):
+            raise InputError(f"{config_flag('min_parallax')} must be between 0 (off) and 4 stage-1 pixels per plane, "
+                             f"got {self.min_parallax}")
         if len(self.temperatures) != 4:
             raise InputError(f"{config_flag('temperatures')} needs one value per stage (4), got {self.temperatures}")
         if not all(math.isfinite(t) and t > 0 for t in self.temperatures):
             raise InputError(f"{config_flag('temperatures')} must be four positive numbers (the official runs use "
                              "5 5 5 1), got " + " ".join(f"{t:g}" for t in self.temperatures))
 
+    @property
+    def stage1_min_parallax(self) -> float:
+        """``min_parallax`` with the preset's default resolved."""
+        if self.min_parallax is not None:
+            return float(self.min_parallax)
+        return DEFAULT_MIN_PARALLAX.get(self.preset, 0.0)
+
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed; the
         network's settings, ``cvt_shifts`` with its preset default resolved, are
-        :func:`~mvsformerpp.pipelines.network.network_settings`)."""
+        :func:`~mvsformerpp.pipelines.network.network_settings`; ``min_parallax`` is given resolved)."""
         d = dataclasses.asdict(self)
+        d["min_parallax"] = self.stage1_min_parallax
         for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_resolution", "mask_dir",
                   "sfm", "cvt_shifts"):  # (SfM: cameras)
             d.pop(k)

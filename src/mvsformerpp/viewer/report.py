@@ -179,6 +179,7 @@ def collect(run: RunFolder) -> dict[str, Any]:
         "timings": summary.get("timings", {}),
         "cloud": str(run.cloud) if run.cloud else None,
         "sfm": run.sfm,
+        "search_ranges": summary.get("search_ranges"),
     }
 
 
@@ -200,6 +201,11 @@ def summary_lines(facts: dict[str, Any]) -> list[str]:
         canvas = facts["canvas"] or ["?", "?"]
         lines.append(f"resolution  : long side {facts['working_long_side']} px (canvas {canvas[0]}x{canvas[1]}), "
                      f"{facts['views_per_depth_map']} views per depth map, {facts['preset']} network")
+    widened = (facts.get("search_ranges") or {}).get("widened_views")
+    if widened:
+        r = facts["search_ranges"]
+        lines.append(f"depth range : widened for {len(widened)} views (x{r['median_factor']:.1f} in inverse depth, "
+                     f"median) so stage 1's planes move the images >= {r['min_parallax']:g} px (--min-parallax)")
     pts = facts["points"]
     lines.append(f"fused cloud : {pts:,} points ({facts['fusion']})" if pts is not None else
                  "fused cloud : none (fusion off; run `mvsformerpp fuse` on the folder)")
