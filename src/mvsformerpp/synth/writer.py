@@ -17,7 +17,8 @@ from mvsformerpp.synth.scenes import random_scene
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 
 
-def _save_png(path: Path, array: np.ndarray) -> None:
+def save_png(path: Path, array: np.ndarray) -> None:
+    """An uint8 image as PNG, written atomically."""
     with atomic_open(path, "wb") as f:
         Image.fromarray(array).save(f, format="PNG")
 
@@ -61,8 +62,8 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
         if not valid.any():
             raise InputError(f"synthetic scene seed {seed} ({style}): view {i} sees nothing; use another seed")
         stem = f"{i:08d}"
-        _save_png(out / "images" / f"{stem}.png", image)
-        _save_png(out / "masks" / f"{stem}.png", (valid * 255).astype(np.uint8))
+        save_png(out / "images" / f"{stem}.png", image)
+        save_png(out / "masks" / f"{stem}.png", (valid * 255).astype(np.uint8))
         write_pfm(out / "depth_gt" / f"{stem}.pfm", depth)
         near, far = float(depth[valid].min()), float(depth[valid].max())
         photo = sensor_depth_range(scene, cam, points=photo_points[i]) if len(photo_points[i]) else None
