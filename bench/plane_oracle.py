@@ -118,16 +118,14 @@ def recipe_counts(recipe: str, samples: int, generator) -> np.ndarray:
 
 def dtu_counts(draws: int, generator) -> np.ndarray:
     import torch
-    import torch.nn.functional as F
     from stage_losses import dtu_pair_inputs  # bench/ is on the path when a bench script runs
+
+    from mvsformerpp.pipelines.model_quality import from_coarse_grid
 
     total = np.zeros((4, 3))
     for images, Ks, Es, depth_min, depth_max, gt in dtu_pair_inputs():
-        gt = torch.from_numpy(gt.astype(np.float32))
         H, W = images.shape[-2:]
-        up = F.interpolate(gt[None, None], (H, W), mode="bilinear", align_corners=False)[0, 0]
-        full = F.interpolate((gt > 0).float()[None, None], (H, W), mode="bilinear", align_corners=False)[0, 0]
-        depth = torch.where(full > 0.999, up, torch.zeros_like(up))
+        depth = torch.from_numpy(from_coarse_grid(gt, H // gt.shape[0], order=1))  # depth pixel j on pixel 4j
         for _ in range(draws):
             total += oracle_counts(images, Ks, Es, depth, depth_min, depth_max, generator)
     return total

@@ -155,6 +155,7 @@ def dtu_stage_scores(model):
     import torch
 
     from mvsformerpp.models.inputs import normalize, stage_projections
+    from mvsformerpp.pipelines.model_quality import from_coarse_grid
 
     counts, rel = np.zeros((3, 4)), []
     model.prepare_for_inference()
@@ -167,7 +168,7 @@ def dtu_stage_scores(model):
             h = out[f"stage{s + 1}"]["depth"].shape[-2]
             f = h / gt.shape[0]
             k = round(1 / f) if f < 1 else round(f)
-            g = gt[::k, ::k] if f < 1 else np.kron(gt, np.ones((k, k), np.float32))
+            g = gt[::k, ::k] if f < 1 else from_coarse_grid(gt, k)  # depth pixel j on pixel k j
             depth_gt[f"stage{s + 1}"] = torch.from_numpy(np.ascontiguousarray(g))[None]
         counts += _stage_counts(out, depth_gt, {k: torch.ones_like(v, dtype=torch.bool) for k, v in depth_gt.items()})
         g4 = depth_gt["stage4"]

@@ -6,7 +6,8 @@ import torch
 
 from mvsformerpp.synth.planes import plane_scene, write_plane_scene
 
-CASES = [dict(), dict(verge=True), dict(tilt_deg=40.0), dict(tilt_deg=25.0, verge=True)]
+CASES = [dict(), dict(verge=True), dict(tilt_deg=40.0), dict(tilt_deg=25.0, verge=True),
+         dict(tilt_deg=35.0, tilt_axis="y")]
 
 
 def _warp_residual(scene, j: int, depth: np.ndarray) -> float:
@@ -57,6 +58,11 @@ def test_reference_depth_is_the_plane_on_each_pixel_centre(kw):
     assert np.abs(normal @ (points - a[:, None])).max() < 1e-4 * scene.depth.max()
     tilt = np.degrees(np.arccos(abs(normal[2])))
     assert tilt == pytest.approx(kw.get("tilt_deg", 0.0), abs=0.01)
+    if tilt > 1:  # the depth changes down the image (x axis) or across it (y axis), farther up / to the right
+        rows, cols = scene.depth.mean(1), scene.depth.mean(0)
+        along = rows[0] - rows[-1] if kw.get("tilt_axis", "x") == "x" else cols[-1] - cols[0]
+        across = cols[-1] - cols[0] if kw.get("tilt_axis", "x") == "x" else rows[0] - rows[-1]
+        assert along > 0.05 * scene.depth.mean() and abs(across) < 1e-3 * scene.depth.mean()
     lo, hi = scene.depth_range
     assert lo < scene.depth.min() and scene.depth.max() < hi
 
@@ -76,6 +82,8 @@ def test_verging_cameras_look_at_the_plane_centre_and_sliding_ones_do_not_turn()
 def test_bad_geometry_is_refused():
     with pytest.raises(ValueError, match="tilt_deg"):
         plane_scene(32, 48, tilt_deg=80.0)
+    with pytest.raises(ValueError, match="tilt_axis"):
+        plane_scene(32, 48, tilt_deg=10.0, tilt_axis="z")
     with pytest.raises(ValueError, match="horizon"):
         plane_scene(32, 48, tilt_deg=70.0, focal=10.0)
 

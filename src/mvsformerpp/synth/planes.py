@@ -60,13 +60,18 @@ def _look_at(center: np.ndarray, target: np.ndarray) -> np.ndarray:
 
 def plane_scene(height: int, width: int, tilt_deg: float = 0.0, verge: bool = False, disparity: float | None = None,
                 depth: float = 2.0, focal: float | None = None, texture: np.ndarray | None = None,
-                texel_px: float = 0.67, supersample: int = 4, offsets: tuple[int, ...] = OFFSETS) -> PlaneScene:
+                texel_px: float = 0.67, supersample: int = 4, offsets: tuple[int, ...] = OFFSETS,
+                tilt_axis: str = "x") -> PlaneScene:
     """Render the scene of the module docstring.
 
     ``disparity`` defaults to width / 32 pixels (20 at 640 px: the same angles at every size),
     ``focal`` to 1.2 x width; ``texel_px``: one texel's size in reference pixels at the plane's centre
     (below 1: finer than the pixels, so each photo pixel averages a few texels, as a real sensor does).
+    ``tilt_axis``: ``x`` tilts the plane about the camera's x axis (depth changes down the image), ``y``
+    about its y axis (depth changes across it, the far side on the right).
     """
+    if tilt_axis not in ("x", "y"):
+        raise ValueError(f"tilt_axis must be 'x' or 'y', got {tilt_axis!r}")
     if not 0.0 <= tilt_deg < 75.0:
         raise ValueError(f"tilt_deg must be in [0, 75) degrees, got {tilt_deg}")
     if height < 8 or width < 8 or supersample < 1:
@@ -76,10 +81,12 @@ def plane_scene(height: int, width: int, tilt_deg: float = 0.0, verge: bool = Fa
     K = np.array([[f, 0.0, width / 2], [0.0, f, height / 2], [0.0, 0.0, 1.0]])
     K_inv = np.linalg.inv(K)
     tilt = np.deg2rad(tilt_deg)
-    normal = np.array([0.0, -np.sin(tilt), -np.cos(tilt)])
+    normal = (np.array([0.0, -np.sin(tilt), -np.cos(tilt)]) if tilt_axis == "x" else
+              np.array([np.sin(tilt), 0.0, -np.cos(tilt)]))
     centre = np.array([0.0, 0.0, depth])
     offset = normal @ centre  # the plane: normal . X = offset
-    axis_u = np.array([1.0, 0.0, 0.0])
+    axis_u = np.cross([0.0, 1.0, 0.0], normal)  # the plane's own 2-D frame
+    axis_u /= np.linalg.norm(axis_u)
     axis_v = np.cross(normal, axis_u)
     texel = depth / f * texel_px
     tex = torch.from_numpy(plane_texture() if texture is None else texture).permute(2, 0, 1).float()[None] / 255
