@@ -2,7 +2,7 @@
 
 The reference camera sits at the origin looking along +z; the plane passes through (0, 0, ``depth``)
 and is tilted by ``tilt_deg`` about the camera's x axis (its far side at the top of the image, as a
-floor or a table seen from above). The source cameras stand at ``k * baseline`` along x for the offsets
+floor or a table seen from above) or, with ``tilt_axis="y"``, about its y axis (far side on the right). The source cameras stand at ``k * baseline`` along x for the offsets
 ``k``; with ``verge`` they turn to look at the plane's centre point, else they keep the reference's
 orientation (a sideways slide: pure horizontal parallax). The baseline is set from ``disparity``: the
 image shift, in pixels, of the plane's centre between neighbouring cameras.
@@ -85,7 +85,7 @@ def plane_scene(height: int, width: int, tilt_deg: float = 0.0, verge: bool = Fa
               np.array([np.sin(tilt), 0.0, -np.cos(tilt)]))
     centre = np.array([0.0, 0.0, depth])
     offset = normal @ centre  # the plane: normal . X = offset
-    axis_u = np.cross([0.0, 1.0, 0.0], normal)  # the plane's own 2-D frame
+    axis_u = np.cross(normal, [0.0, 1.0, 0.0])  # the plane's own 2-D frame (x-tilt: the camera's x axis)
     axis_u /= np.linalg.norm(axis_u)
     axis_v = np.cross(normal, axis_u)
     texel = depth / f * texel_px
