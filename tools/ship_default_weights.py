@@ -3,7 +3,8 @@
     python tools/ship_default_weights.py RUN_DIR/checkpoints/best.safetensors --run RUN_DIR \
         [--quality quality.json] [--info key=value ...]
     python tools/ship_default_weights.py src/mvsformerpp/assets/weights/FILE --same-training \
-        --quality quality.json     # the same weights again, re-measured (e.g. after a change of the preset)
+        --quality quality.json     # the same weights again, re-measured (e.g. after a change of the preset);
+                                   # without --calibrate in the quality file they keep their fusion thresholds
 
 Writes src/mvsformerpp/assets/weights/<file> and default.json (size, SHA-256, the training facts given,
 the run's config.yaml and last metrics, and the measured quality when --quality is given; a quality file
@@ -40,9 +41,8 @@ def main() -> None:
         p.error("--same-training keeps the shipped record's training facts: leave out --run")
     model = load_checkpoint(build_model(SHIPPED_PRESET), args.checkpoint)
     info: dict = {}
-    if args.same_training:
-        measured = ("file", "preset", "bytes", "sha256", "quality", "fusion_conf", "fusion_calibration")
-        info = {k: v for k, v in shipped_record().items() if k not in measured}
+    if args.same_training:  # everything the record says, but what the file itself and a new measurement change
+        info = {k: v for k, v in shipped_record().items() if k not in ("file", "preset", "bytes", "sha256")}
     info.update(kv.split("=", 1) for kv in args.info)
     if args.run:
         run = Path(args.run)
@@ -64,6 +64,8 @@ def main() -> None:
         if calibration is not None:  # bench/eval_default_model.py --calibrate: the thresholds fusion uses
             info["fusion_conf"] = calibration["fusion_conf"]
             info["fusion_calibration"] = calibration
+        elif "fusion_conf" in info:  # measured without --calibrate: the same weights keep their thresholds
+            print("kept the shipped fusion thresholds (the quality file was made without --calibrate)")
     path = write_shipped(model, SHIPPED_PRESET, WEIGHTS_DIR, FILE_NAME, info)
     print(f"wrote {path} ({path.stat().st_size / 2**20:.1f} MiB) and {WEIGHTS_DIR / 'default.json'}")
 

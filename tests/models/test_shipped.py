@@ -162,3 +162,27 @@ def test_shipped_fusion_thresholds_follow_the_calibration_rule():
     assert set(record["fusion_conf"]) == set(calibration["table"])
     for method, rows in calibration["table"].items():
         assert record["fusion_conf"][method] == pick_threshold(rows)
+
+
+def test_reshipping_the_same_weights_keeps_what_a_new_measurement_does_not_replace(install_copy, tmp_path,
+                                                                                     monkeypatch):
+    """tools/ship_default_weights.py --same-training with a quality file made without --calibrate: the new
+    quality replaces the old, the calibrated fusion thresholds and the training facts stay."""
+    import json
+    import runpy
+    import sys
+    from pathlib import Path
+
+    before = shipped.shipped_record()
+    quality = tmp_path / "quality.json"
+    quality.write_text(json.dumps({"weights": "re-measured", "dtu_pair": {"within_4mm": 0.5}}))
+    tool = Path(__file__).resolve().parents[2] / "tools" / "ship_default_weights.py"
+    monkeypatch.setattr(sys, "argv", [str(tool), str(install_copy / before["file"]), "--same-training",
+                                      "--quality", str(quality)])
+    runpy.run_path(str(tool), run_name="__main__")
+    shipped.shipped_record.cache_clear()
+    after = shipped.shipped_record()
+    assert after["quality"] == {"weights": "re-measured", "dtu_pair": {"within_4mm": 0.5}}
+    assert after["fusion_conf"] == before["fusion_conf"] and after["fusion_calibration"] == before["fusion_calibration"]
+    assert after["training_command"] == before["training_command"] and after["steps"] == before["steps"]
+    assert after["sha256"] == before["sha256"]  # the same weights, stored the same way
