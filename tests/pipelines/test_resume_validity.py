@@ -127,6 +127,11 @@ def test_the_least_stage1_parallax_is_part_of_every_view_s_settings(tmp_path):
     widened = json.loads((out / "summary.json").read_text())["search_ranges"]
     assert widened["min_parallax"] == 4.0 and widened["widened_views"] == [0, 1, 2, 3]
     assert widened["median_factor"] > 1
+    from mvsformerpp.io.output_folder import open_run
+    from mvsformerpp.viewer.report import collect, render_report, summary_lines
+
+    assert any(line.startswith("depth range : widened for 4 views") for line in summary_lines(collect(open_run(out))))
+    assert "widened for 4 views (0, 1, 2, 3;" in render_report(open_run(out))
     assert rewritten() == {0, 1, 2, 3}
     assert rewritten(min_parallax=DEFAULT_MIN_PARALLAX[FAST.preset]) == set()
     assert rewritten(min_parallax=0.0) == {0, 1, 2, 3}

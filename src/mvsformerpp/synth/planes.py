@@ -2,9 +2,10 @@
 
 The reference camera sits at the origin looking along +z; the plane passes through (0, 0, ``depth``)
 and is tilted by ``tilt_deg`` about the camera's x axis (its far side at the top of the image, as a
-floor or a table seen from above) or, with ``tilt_axis="y"``, about its y axis (far side on the right). The source cameras stand at ``k * baseline`` along x for the offsets
-``k``; with ``verge`` they turn to look at the plane's centre point, else they keep the reference's
-orientation (a sideways slide: pure horizontal parallax). The baseline is set from ``disparity``: the
+floor or a table seen from above) or, with ``tilt_axis="y"``, about its y axis (far side on the right).
+The source cameras stand at ``k * baseline`` along x for the offsets ``k``; with ``verge`` they turn to
+look at the plane's centre point, else they keep the reference's orientation (a sideways slide: pure
+horizontal parallax). The baseline is set from ``disparity``: the
 image shift, in pixels, of the plane's centre between neighbouring cameras.
 
 Pixel (x, y) covers [x, x+1) x [y, y+1) and its ray is K^-1 [x + 0.5, y + 0.5, 1], as in

@@ -201,16 +201,24 @@ def summary_lines(facts: dict[str, Any]) -> list[str]:
         canvas = facts["canvas"] or ["?", "?"]
         lines.append(f"resolution  : long side {facts['working_long_side']} px (canvas {canvas[0]}x{canvas[1]}), "
                      f"{facts['views_per_depth_map']} views per depth map, {facts['preset']} network")
-    widened = (facts.get("search_ranges") or {}).get("widened_views")
-    if widened:
-        r = facts["search_ranges"]
-        lines.append(f"depth range : widened for {len(widened)} views (x{r['median_factor']:.1f} in inverse depth, "
-                     f"median) so stage 1's planes move the images >= {r['min_parallax']:g} px (--min-parallax)")
+    if (facts.get("search_ranges") or {}).get("widened_views"):
+        lines.append(f"depth range : {widened_line(facts)}")
     pts = facts["points"]
     lines.append(f"fused cloud : {pts:,} points ({facts['fusion']})" if pts is not None else
                  "fused cloud : none (fusion off; run `mvsformerpp fuse` on the folder)")
     lines.append(f"time        : {time_line(facts)}")
     return lines
+
+
+def widened_line(facts: dict[str, Any]) -> str:
+    """Which views stage 1 searched over a range wider than their own (``reconstruct --min-parallax``)."""
+    r = facts.get("search_ranges") or {}
+    widened = r.get("widened_views") or []
+    if not widened:
+        return "as the cameras give them" if r else "as the cameras give them (or not recorded)"
+    names = ", ".join(str(v) for v in widened[:8]) + (" ..." if len(widened) > 8 else "")
+    return (f"widened for {len(widened)} views ({names}; x{r['median_factor']:.1f} in inverse depth, median) so "
+            f"stage 1's planes move the images >= {r['min_parallax']:g} px (--min-parallax)")
 
 
 def time_line(facts: dict[str, Any]) -> str:
@@ -348,6 +356,7 @@ def render_report(run: RunFolder, base: Path | None = None) -> str:
         ("network", html.escape(f"{facts['preset']} ({facts['weights']}), "
                                 f"{facts['device']}, {facts['precision']}, "
                                 f"{facts['views_per_depth_map']} views per depth map")),
+        ("depth ranges", html.escape(widened_line(facts))),
         ("fused points", f"{facts['points']:,}" if facts["points"] is not None else "none (fusion off)"),
         ("time", html.escape(time_line(facts))),
         ("cloud", html.escape(facts["cloud"] or "-")),
