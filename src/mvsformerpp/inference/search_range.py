@@ -30,6 +30,8 @@ FAR_FLOOR = 0.05
 
 @dataclass(frozen=True)
 class SearchRange:
+    """What :func:`search_range` decided for one reference view."""
+
     depth_min: float
     depth_max: float
     shift: float
