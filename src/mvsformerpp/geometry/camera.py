@@ -65,3 +65,24 @@ def crop_intrinsics(K: np.ndarray, x0: float, y0: float) -> np.ndarray:
 def pad_intrinsics(K: np.ndarray, left: float, top: float) -> np.ndarray:
     """K after padding ``left`` columns and ``top`` rows (negative crop)."""
     return crop_intrinsics(K, -left, -top)
+
+
+def plane_shift(K_ref: np.ndarray, E_ref: np.ndarray, K_src: np.ndarray, E_src: np.ndarray, pixels: np.ndarray,
+                inv_a, inv_b) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """How far apart a source view sees reference pixels lifted to two inverse depths (numpy, float64).
+
+    ``pixels`` [2, N]: reference image coordinates (as given: pass pixel centres if that is the convention);
+    ``inv_a``, ``inv_b``: inverse z-depths in the reference camera, scalars or [N]; cameras as 3x3 intrinsics and
+    4x4 world-to-camera matrices. Returns ``(distance [N], uv_a [2, N], front [N])``: the distance in source
+    pixels between the two projections, the projection at ``inv_a``, and where both points lie in front of the
+    source camera (elsewhere the other two are meaningless).
+    """
+    rays = np.linalg.inv(K_ref) @ np.vstack([pixels, np.ones((1, pixels.shape[1]))])  # z = 1
+    to_world = np.linalg.inv(np.asarray(E_ref, dtype=np.float64))
+    E_src = np.asarray(E_src, dtype=np.float64)
+    cams = [E_src[:3, :3] @ (to_world[:3, :3] @ (rays / inv) + to_world[:3, 3:4]) + E_src[:3, 3:4]
+            for inv in (inv_a, inv_b)]
+    front = (cams[0][2] > 1e-9) & (cams[1][2] > 1e-9)
+    uv = [(K_src @ c)[:2] / np.where(front, (K_src @ c)[2], 1.0) for c in cams]
+    return np.linalg.norm(uv[0] - uv[1], axis=0), uv[0], front
+

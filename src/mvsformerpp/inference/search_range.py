@@ -22,6 +22,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from mvsformerpp.geometry.camera import plane_shift
+
 MAX_FACTOR = 64.0
 """The most a range is widened (in inverse-depth span): beyond it the baseline is too short to help."""
 FAR_FLOOR = 0.05
@@ -52,19 +54,15 @@ def stage1_shift(K_ref: np.ndarray, E_ref: np.ndarray, sources: list[tuple[np.nd
     in front of the source and inside its image of the same size (a source that sees none adds nothing).
     """
     xs, ys = np.meshgrid((np.arange(grid) + 0.5) * width / grid, (np.arange(grid) + 0.5) * height / grid)
-    rays = np.linalg.inv(K_ref) @ np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])
-    to_world = np.linalg.inv(E_ref)
+    pixels = np.stack([xs.ravel(), ys.ravel()])
     middle = 0.5 * (1.0 / depth_min + 1.0 / depth_max)
     step = (1.0 / depth_min - 1.0 / depth_max) / (planes - 1)
-    points = [to_world[:3, :3] @ (rays / inv) + to_world[:3, 3:4] for inv in (middle - step / 2, middle + step / 2)]
     total = 0.0
     for K, E in sources:
-        cam = [E[:3, :3] @ p + E[:3, 3:4] for p in points]
-        front = (cam[0][2] > 1e-9) & (cam[1][2] > 1e-9)
-        uv = [(K @ c)[:2] / np.where(front, (K @ c)[2], 1.0) for c in cam]
-        inside = front & np.all((uv[0] >= 0) & (uv[0] < np.array([[width], [height]])), axis=0)
+        distance, uv, front = plane_shift(K_ref, E_ref, K, E, pixels, middle - step / 2, middle + step / 2)
+        inside = front & np.all((uv >= 0) & (uv < np.array([[width], [height]])), axis=0)
         if inside.any():
-            total += float(np.median(np.linalg.norm(uv[0][:, inside] - uv[1][:, inside], axis=0))) * stage_scale
+            total += float(np.median(distance[inside])) * stage_scale
     return total
 
 

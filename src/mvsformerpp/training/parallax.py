@@ -28,6 +28,7 @@ import sys
 import numpy as np
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.geometry.camera import plane_shift
 from mvsformerpp.models.inputs import STAGE_SCALES
 
 SCALES = tuple(STAGE_SCALES.values())
@@ -64,25 +65,14 @@ def view_shifts(K_ref, E_ref, K_src, E_src, depth: np.ndarray, depth_min: float,
         pick = np.linspace(0, len(ys) - 1, max_points).astype(np.int64)
         ys, xs = ys[pick], xs[pick]
     inv = 1.0 / depth[ys, xs].astype(np.float64)
-    rays = np.stack([xs + 0.5, ys + 0.5, np.ones_like(inv)]).T @ np.linalg.inv(K_ref).T  # z = 1
-    R, t = np.asarray(E_ref)[:3, :3], np.asarray(E_ref)[:3, 3]
-    Rs, ts = np.asarray(E_src)[:3, :3], np.asarray(E_src)[:3, 3]
+    pixels = np.stack([xs + 0.5, ys + 0.5]).astype(np.float64)  # pixel centres
     span = 1.0 / depth_min - 1.0 / depth_max
     out = []
     for step, scale in zip(steps, SCALES):
         half = 0.5 * step * span
-        ends = []
-        for q in (np.maximum(inv - half, 1e-3 * inv), inv + half):
-            world = (rays / q[:, None] - t) @ R  # R^T (X_cam - t)
-            cam = world @ Rs.T + ts
-            ends.append(cam)
-        front = (ends[0][:, 2] > 0) & (ends[1][:, 2] > 0)
-        if not front.any():
-            out.append(np.nan)
-            continue
-        pix = [(np.asarray(K_src) @ c[front].T).T for c in ends]
-        uv = [p[:, :2] / p[:, 2:] for p in pix]
-        out.append(float(np.median(np.linalg.norm(uv[0] - uv[1], axis=1))) * scale)
+        distance, _, front = plane_shift(K_ref, E_ref, K_src, E_src, pixels, np.maximum(inv - half, 1e-3 * inv),
+                                         inv + half)
+        out.append(float(np.median(distance[front])) * scale if front.any() else np.nan)
     return np.asarray(out)
 
 
