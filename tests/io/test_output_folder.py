@@ -49,6 +49,23 @@ def test_write_view_and_progress(tmp_path):
     assert not of.OutputFolder(tmp_path / "out").view_done(0, "s1")
 
 
+def test_a_widened_search_range_is_recorded_with_its_view_by_every_rank(tmp_path):
+    """The range stage 1 searched travels with the view's record: rank 1's through its own progress file into
+    rank 0's, and a view written again with the camera's range forgets the wider one."""
+    root = tmp_path / "out"
+    depth, conf = np.ones((6, 8), np.float32), np.full((6, 8), 0.5, np.float32)
+    main = of.OutputFolder(root)
+    main.write_view(0, depth, conf, "s1", searched=(0.5, 9.0, 3.0))
+    of.OutputFolder(root, rank=1).write_view(1, depth, conf, "s1", searched=(0.25, 20.0, 6.0))
+    main = of.OutputFolder(root)  # the next start folds rank 1's record in
+    assert main.progress["searched"] == {"0": [0.5, 9.0, 3.0], "1": [0.25, 20.0, 6.0]}
+    assert not list(root.glob("progress.rank*"))
+    of.OutputFolder(root, rank=1).write_view(1, depth, conf, "s2")
+    main.write_view(0, depth, conf, "s2")
+    main.fold_rank_progress()
+    assert main.progress["searched"] == {}
+
+
 def test_scene_fingerprint_and_refusal(tmp_path):
     a, b = of.scene_fingerprint(tiny_scene()), of.scene_fingerprint(tiny_scene(0.5))
     assert a != b and a == of.scene_fingerprint(tiny_scene())

@@ -123,16 +123,34 @@ def test_the_least_stage1_parallax_is_part_of_every_view_s_settings(tmp_path):
         after = {p.name: p.stat().st_ino for p in (out / "depth_est").glob("*.pfm")}
         return {int(name[:8]) for name, ino in after.items() if before.get(name) != ino}
 
-    assert rewritten(min_parallax=4.0) == {0, 1, 2, 3}
-    widened = json.loads((out / "summary.json").read_text())["search_ranges"]
-    assert widened["min_parallax"] == 4.0 and widened["widened_views"] == [0, 1, 2, 3]
-    assert widened["median_factor"] > 1
-    from mvsformerpp.io.output_folder import open_run
-    from mvsformerpp.viewer.report import collect, render_report, summary_lines
+    from html import escape
 
-    assert any(line.startswith("depth range : widened for 4 views") for line in summary_lines(collect(open_run(out))))
-    assert "widened for 4 views (0, 1, 2, 3;" in render_report(open_run(out))
+    from mvsformerpp.io.mvsnet import read_cam
+    from mvsformerpp.io.output_folder import open_run
+    from mvsformerpp.viewer.report import collect, render_report, summary_lines, view_statistics
+
+    def check_widened():
+        widened = json.loads((out / "summary.json").read_text())["search_ranges"]
+        assert widened["min_parallax"] == 4.0 and widened["widened_views"] == [0, 1, 2, 3]
+        assert widened["median_factor"] > 1
+        run = open_run(out)
+        assert any(line.startswith("depth range : widened for 4 views") for line in summary_lines(collect(run)))
+        html = render_report(run)
+        assert "widened for 4 views (0, 1, 2, 3;" in html
+        for v in run.views:  # each view's searched range holds the camera's and is what the report shows
+            cam = read_cam(v.cam)
+            lo, hi = widened["searched"][v.stem]
+            assert lo < cam.depth_min and hi > cam.depth_max and v.searched[:2] == (lo, hi)
+            assert view_statistics(v, None)["range"] == (lo, hi)
+            caption = f"searched {lo:.5g} .. {hi:.5g} (the camera's {cam.depth_min:.5g} .. {cam.depth_max:.5g} widened"
+            assert escape(caption) in html
+
+    assert rewritten(min_parallax=4.0) == {0, 1, 2, 3}
+    check_widened()
+    assert rewritten(min_parallax=4.0) == set()  # views kept from the earlier run keep their searched range
+    check_widened()
     assert rewritten() == {0, 1, 2, 3}
     assert rewritten(min_parallax=DEFAULT_MIN_PARALLAX[FAST.preset]) == set()
     assert rewritten(min_parallax=0.0) == {0, 1, 2, 3}
     assert json.loads((out / "summary.json").read_text())["search_ranges"]["widened_views"] == []
+    assert all(v.searched is None for v in open_run(out).views)

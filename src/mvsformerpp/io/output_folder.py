@@ -4,7 +4,8 @@ Layout (binding for fusion, which reads it with the MVSNet reader):
 ``images/NNNNNNNN.<ext>``, ``cams/NNNNNNNN_cam.txt``, ``pair.txt``, ``depth_est/NNNNNNNN.pfm``,
 ``confidence/NNNNNNNN.pfm``, ``depth_vis/NNNNNNNN.png``, ``confidence_vis/NNNNNNNN.png``, ``fused.ply``,
 ``config.json``, ``summary.json``, ``views.json``; plus ``progress.json`` (which views are done and with
-which settings) and ``sfm/`` when structure-from-motion ran.
+which settings, and the depth range stage 1 searched where ``--min-parallax`` widened the camera's) and
+``sfm/`` when structure-from-motion ran.
 
 Everything that knows this layout is here: :class:`OutputFolder` writes it (``reconstruct``), the
 readers below (:func:`open_run`, :func:`read_run_record`, :func:`require_depth_maps`) serve ``fuse``,
@@ -161,7 +162,14 @@ class OutputFolder:
         if not files:
             return
         for f in files:
-            self.progress["views"].update((self._read_json(f) or {}).get("views", {}))
+            record = self._read_json(f) or {}
+            self.progress["views"].update(record.get("views", {}))
+            ranges = self.progress.setdefault("searched", {})
+            for k, searched in record.get("searched", {}).items():
+                if searched is None:
+                    ranges.pop(k, None)
+                else:
+                    ranges[k] = searched
         self.save_progress()
         for f in files:
             f.unlink(missing_ok=True)
@@ -197,9 +205,10 @@ class OutputFolder:
         return self.progress["views"].get(str(i)) == state and all(p.is_file() for p in self.paths(i).values())
 
     def write_view(self, i: int, depth: np.ndarray, confidence: np.ndarray, state: str,
-                   preview_conf: float | None = None) -> None:
+                   preview_conf: float | None = None, searched: tuple[float, float, float] | None = None) -> None:
         """Write the four files of view ``i``, then record it as done. The depth preview greys the pixels
-        whose confidence is at most ``preview_conf`` (those fusion drops; None: none greyed)."""
+        whose confidence is at most ``preview_conf`` (those fusion drops; None: none greyed). ``searched``:
+        ``(depth_min, depth_max, factor)`` of a stage-1 range wider than the camera's (None: the camera's)."""
         p = self.paths(i)
         with disk_full_guard(p["depth"]):
             write_pfm(p["depth"], depth)
@@ -207,6 +216,11 @@ class OutputFolder:
             depth_to_png(p["depth_vis"], depth, confidence, preview_conf)
             confidence_to_png(p["confidence_vis"], confidence)
             self.progress["views"][str(i)] = state
+            ranges = self.progress.setdefault("searched", {})
+            if searched is not None or self.rank > 0:  # (None tells rank 0's fold to forget an older range)
+                ranges[str(i)] = None if searched is None else [float(x) for x in searched]
+            else:
+                ranges.pop(str(i), None)
             self.save_progress()
 
     def redraw_previews(self, views: list[int], preview_conf: float | None) -> None:
@@ -291,6 +305,8 @@ class ViewFiles:
     depth: Path | None
     confidence: Path | None
     cam: Path | None
+    searched: tuple[float, float, float] | None = None
+    """``(depth_min, depth_max, factor)`` when stage 1 searched a range wider than the camera's."""
 
     def read_depth(self) -> np.ndarray | None:
         return None if self.depth is None else read_pfm(self.depth)
@@ -338,13 +354,15 @@ def open_run(root: str | Path) -> RunFolder:
         raise InputError("not a reconstruct output folder (no cams/ inside); make one with "
                          "`mvsformerpp reconstruct INPUT -o OUT`", root)
     names = _json(root / VIEWS)
+    searched = _json(root / PROGRESS).get("searched") or {}
     views = []
     for i in sorted(cams):
         stem = f"{i:08d}"
         depth, conf = root / DEPTH / f"{stem}.pfm", root / CONFIDENCE / f"{stem}.pfm"
         views.append(ViewFiles(stem=stem, name=names.get(stem, stem), image=find_image(root / IMAGES, stem),
                                depth=depth if depth.is_file() else None,
-                               confidence=conf if conf.is_file() else None, cam=cams[i]))
+                               confidence=conf if conf.is_file() else None, cam=cams[i],
+                               searched=tuple(searched[str(i)]) if searched.get(str(i)) else None))
     return RunFolder(root=root, config=_json(root / CONFIG), summary=_json(root / SUMMARY),
                      views=views, sfm=sfm_outcome(root / "sfm"))
 
@@ -363,7 +381,7 @@ def sfm_outcome(sfm_dir: Path) -> dict[str, Any] | None:
 
 
 def depth_range_of(view: ViewFiles) -> tuple[float, float] | None:
-    """The depth range of a view's camera file (the range the network searched)."""
+    """The depth range of a view's camera file (what the network searched unless ``view.searched`` says)."""
     if view.cam is None:
         return None
     cam = read_cam(view.cam)

@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import torch
 
@@ -32,8 +32,6 @@ class DepthMapsDone:
     feature_cache: dict | None
     schedule: dict | None
     """The cache-friendly order's statistics (None when nothing was computed)."""
-    widened: dict[int, float] = field(default_factory=dict)
-    """Views of this rank whose stage-1 depth range was widened, with the factor (``--min-parallax``)."""
 
 
 def write_layout(folder: OutputFolder, plan: RunPlan) -> list[int]:
@@ -92,7 +90,6 @@ def compute_depth_maps(folder: OutputFolder, plan: RunPlan, todo: list[int], mod
         return DepthMapsDone(time.perf_counter() - t0, 0, 0, None, None)
     runner, schedule = ranks.step(partial(_started, plan, model, todo))
     mine = ranks.shard(schedule["order"])
-    widened: dict[int, float] = {}
     error = None
     try:
         for i in tqdm(mine, desc="Depth maps", unit="view", disable=quiet):
@@ -100,13 +97,12 @@ def compute_depth_maps(folder: OutputFolder, plan: RunPlan, todo: list[int], mod
             if stop is not None:
                 raise StoppedByOtherRank(stop)
             res = runner.infer(i)
-            folder.write_view(i, res.depth, res.confidence, plan.keys[i], plan.preview_conf)
-            if res.range_factor > 1:
-                widened[i] = res.range_factor
+            searched = (*res.search_range, res.range_factor) if res.range_factor > 1 else None
+            folder.write_view(i, res.depth, res.confidence, plan.keys[i], plan.preview_conf, searched)
     except Exception as e:  # (exchanged with the other ranks, then raised again)
         error = e
     ranks.outcome(error)
-    return DepthMapsDone(time.perf_counter() - t0, len(todo), len(mine), runner.cache.stats(), schedule, widened)
+    return DepthMapsDone(time.perf_counter() - t0, len(todo), len(mine), runner.cache.stats(), schedule)
 
 
 def _started(plan: RunPlan, model: torch.nn.Module | None, todo: list[int]) -> tuple[SceneInference, dict]:

@@ -96,7 +96,7 @@ def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ran
     done = compute_depth_maps(folder, plan, todo, model, ranks, quiet)
     timings.update(depth_s=done.seconds, views_computed=done.computed, views_reused=len(scene) - done.computed)
     per_rank = ranks.gather({"views": done.mine, "depth_s": round(done.seconds, 3),
-                             "feature_cache": done.feature_cache, "widened": done.widened})
+                             "feature_cache": done.feature_cache})
 
     # 5.-6. fusion, summary and report (rank 0)
     return ranks.broadcast(ranks.step(partial(finish, folder, plan, done, per_rank, timings, t0, quiet,
@@ -157,7 +157,7 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
         "timings": {k: round(v, 3) if isinstance(v, float) else v for k, v in timings.items()},
         "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
         "schedule": None if done.schedule is None else {k: v for k, v in done.schedule.items() if k != "order"},
-        "search_ranges": _widened_ranges(config, per_rank),
+        "search_ranges": _widened_ranges(config, folder.progress.get("searched") or {}),
         "ranks": per_rank if distributed else None,
         "outputs": {"ply": str(ply) if points is not None else None,
                     "depth_vis": str(folder.root / DEPTH_VIS), "report": str(folder.report)},
@@ -168,12 +168,14 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
     return summary
 
 
-def _widened_ranges(config, per_rank: list[dict]) -> dict:
-    """``--min-parallax`` and the views of this run whose stage-1 depth range it widened (with the median
-    factor of their inverse-depth spans)."""
-    factors = {int(v): f for r in per_rank for v, f in (r.get("widened") or {}).items()}
-    return {"min_parallax": config.stage1_min_parallax, "widened_views": sorted(factors),
-            "median_factor": statistics.median(factors.values()) if factors else None}
+def _widened_ranges(config, searched: dict[str, list[float] | None]) -> dict:
+    """``--min-parallax`` and the views whose stage-1 depth range it widened (this run's and those kept
+    from an earlier run with the same settings), with the median factor of their inverse-depth spans and
+    each one's searched range."""
+    ranges = {int(v): r for v, r in searched.items() if r}
+    return {"min_parallax": config.stage1_min_parallax, "widened_views": sorted(ranges),
+            "median_factor": statistics.median(r[2] for r in ranges.values()) if ranges else None,
+            "searched": {f"{v:08d}": r[:2] for v, r in sorted(ranges.items())}}
 
 
 def _sum_stats(stats: list[dict | None]) -> dict | None:

@@ -123,6 +123,9 @@ def view_statistics(view: ViewFiles, conf_threshold: float | None) -> dict[str, 
     """Depth range searched and found, share of pixels with depth, share above the fusion threshold."""
     depth = view.read_depth()
     stats: dict[str, Any] = {"name": view.name, "stem": view.stem, "range": depth_range_of(view)}
+    if view.searched is not None:  # stage 1 searched more than the camera's range (--min-parallax)
+        stats["camera_range"], stats["range"] = stats["range"], tuple(view.searched[:2])
+        stats["widened"] = float(view.searched[2])
     if depth is None:
         return stats
     conf = view.read_confidence()
@@ -324,7 +327,10 @@ def _view_section(view: ViewFiles, stats: dict[str, Any], unit: str, threshold: 
     else:
         panels.append('<div class="cap warn">no depth map yet</div>')
     rng, found = stats.get("range"), stats.get("found")
-    facts = [f"searched {rng[0]:.5g} .. {rng[1]:.5g}" if rng else None,
+    cam = stats.get("camera_range")
+    widened = (f" (the camera's {cam[0]:.5g} .. {cam[1]:.5g} widened x{stats['widened']:.1f} in inverse depth "
+               "by --min-parallax)" if cam else "")
+    facts = [f"searched {rng[0]:.5g} .. {rng[1]:.5g}{widened}" if rng else None,
              f"found {found[0]:.5g} .. {found[1]:.5g}" if found else None,
              f"{stats['valid']:.0%} of pixels with depth" if "valid" in stats else None,
              f"{stats['above_threshold']:.0%} above the fusion threshold" if "above_threshold" in stats else None]
