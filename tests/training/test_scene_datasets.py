@@ -226,3 +226,30 @@ def test_a_synthetic_reference_that_sees_nothing_hands_over_to_the_next_camera()
                              source=lambda **kw: one_blind(**kw, blind=range(kw["num_views"])))
     with pytest.raises(InputError, match="and the 7 scenes after it: no camera sees enough"):
         blind.load_views(0, np.random.default_rng(0), 24, 32)
+
+
+def test_a_synthetic_scene_s_views_are_rendered_once_for_its_samples_in_a_row(monkeypatch):
+    """Samples of one scene in a row (``synthetic_scene_batches``) share its renderings: every view rendered
+    once, and each sample exactly what a process that rendered it afresh gives."""
+    import mvsformerpp.synth as synth
+    from mvsformerpp.data import SyntheticDataset
+
+    def fresh(index):
+        return SyntheticDataset(2, num_views=3, views_per_scene=4).load_views(index, np.random.default_rng(index),
+                                                                              48, 64)
+
+    expected = [fresh(i) for i in range(4)]
+    rendered = []
+    real = synth.render_view
+    monkeypatch.setattr(synth, "render_view", lambda scene, cam: rendered.append(cam) or real(scene, cam))
+    ds = SyntheticDataset(2, num_views=3, views_per_scene=4)
+    got = [ds.load_views(i, np.random.default_rng(i), 48, 64) for i in range(4)]
+    assert len(rendered) == 4  # one scene, four cameras, each rendered once for the four samples
+    for a, b in zip(got, expected):
+        assert (a.depth_min, a.depth_max) == (b.depth_min, b.depth_max)
+        for va, vb in zip(a.views, b.views):
+            np.testing.assert_array_equal(va.image, vb.image)
+            np.testing.assert_array_equal(va.E, vb.E)
+    ds.load_views(4, np.random.default_rng(0), 48, 64)  # the next scene
+    ds.load_views(0, np.random.default_rng(0), 48, 96)  # another size: another rendering
+    assert len(rendered) > 4 + 3

@@ -128,7 +128,24 @@ def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path, r
     assert load_model(weights).config.vit_depth == 6  # the lite network
     config = yaml.safe_load((tmp_path / "out" / "config.yaml").read_text())
     assert config["resolutions"] == [[64, 96]] and config["min_overlap"] == 0.6  # the recipe, shrunk
+    assert config["synthetic_scene_batches"] and config["batch_size"] == 5  # SCENE_BATCHES's default: whole scenes
     if recipe:
-        assert config["synthetic_options"]["sensor_width"] == [800, 3200] and config["micro_batch"] == 8
+        assert config["synthetic_options"]["sensor_width"] == [800, 3200] and config["micro_batch"] == 10
     rows = [json.loads(line) for line in (tmp_path / "out" / "metrics.jsonl").read_text().splitlines()]
     assert max(r["step"] for r in rows if "loss" in r) == 4
+
+
+def test_scene_batches_train_on_whole_scenes_and_need_a_batch_of_whole_scenes(tmp_path):
+    """``synthetic_scene_batches``: each batch holds every view of its scenes as a reference (the order moves
+    whole scenes); a batch that cannot hold whole scenes is refused with the numbers."""
+    from mvsformerpp.data.samplers import MultiScaleBatchSampler
+    from mvsformerpp.training.trainer import shuffle_block
+
+    cfg = tiny_config(synthetic_scene_batches=True, batch_size=3, synthetic_train_scenes=4)
+    assert shuffle_block(cfg) == 3 and shuffle_block(tiny_config()) == 1
+    batches = list(MultiScaleBatchSampler(12, 3, [(32, 64)], seed=0, block=shuffle_block(cfg)))
+    assert all({k.index // 3 for k in b} == {b[0].index // 3} for b in batches)  # one scene per batch
+    summary = run_training(cfg, tmp_path / "run")
+    assert summary["steps"] == 2 and summary["bad_steps"] == 0
+    with pytest.raises(InputError, match="batch_size must be a multiple of it, got 2"):
+        tiny_config(synthetic_scene_batches=True, batch_size=2)

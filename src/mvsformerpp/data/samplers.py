@@ -27,11 +27,13 @@ class MultiScaleBatchSampler:
         rank, world_size: this process takes the ``rank``-th contiguous slice of each global batch.
         start: batches of the epoch to skip (resume).
         drop_last: drop an incomplete last batch (training); otherwise it is kept (validation).
+        block: the shuffle moves blocks of this many consecutive samples, each kept together in index
+            order (the synthetic recipe's ``synthetic_scene_batches``: a block is one scene's views).
     """
 
     def __init__(self, num_samples: int, batch_size: int, resolutions: Sequence[tuple[int, int]], seed: int = 0,
                  epoch: int = 0, shuffle: bool = True, rank: int = 0, world_size: int = 1, start: int = 0,
-                 drop_last: bool = True):
+                 drop_last: bool = True, block: int = 1):
         if batch_size % world_size:
             raise InputError(f"the global batch size {batch_size} is not a multiple of the {world_size} processes; "
                              "choose --batch-size accordingly")
@@ -41,6 +43,9 @@ class MultiScaleBatchSampler:
         self.resolutions = [tuple(int(x) for x in r) for r in resolutions]
         self.seed, self.epoch, self.shuffle = int(seed), int(epoch), bool(shuffle)
         self.rank, self.world_size, self.start, self.drop_last = int(rank), int(world_size), int(start), drop_last
+        if block < 1:
+            raise InputError(f"the shuffle's block must be at least one sample, got {block}")
+        self.block = int(block)
 
     @staticmethod
     def batches_per_epoch(num_samples: int, batch_size: int, drop_last: bool = True) -> int:
@@ -53,7 +58,10 @@ class MultiScaleBatchSampler:
         if not self.shuffle:
             return list(range(self.num_samples))
         g = torch.Generator().manual_seed(self.seed + self.epoch)
-        return torch.randperm(self.num_samples, generator=g).tolist()
+        if self.block == 1:
+            return torch.randperm(self.num_samples, generator=g).tolist()
+        blocks = torch.randperm(-(-self.num_samples // self.block), generator=g).tolist()
+        return [i for b in blocks for i in range(b * self.block, min((b + 1) * self.block, self.num_samples))]
 
     def __iter__(self) -> Iterator[list[SampleKey]]:
         order = self.order()

@@ -2,7 +2,8 @@
 
 Sample ``i`` is reference view ``i % views_per_scene`` of scene ``i // views_per_scene``; the scene
 comes from ``source(seed=scene_seed + scene, num_views=views_per_scene, height, width, **options)``,
-so a run is reproducible and no files are needed. Only the views a sample uses are rendered.
+so a run is reproducible and no files are needed. Only the views a sample uses are rendered, and a
+process keeps the views of its last scenes, so consecutive samples of one scene share their renderings.
 
 Plugging in another generator: ``source`` is any callable with that signature that returns a
 :class:`mvsformerpp.synth.render.SynthScene` (surfaces, cameras, size), which
@@ -15,6 +16,7 @@ from __future__ import annotations
 
 import importlib
 import inspect
+from collections import OrderedDict
 from collections.abc import Callable
 
 import numpy as np
@@ -27,6 +29,8 @@ SOURCE_ARGS = ("seed", "num_views", "height", "width")
 """The keywords every scene source is called with."""
 EMPTY_SCENE_TRIES = 8
 """Scenes (this one and the next seeds) a sample tries before it gives up on a source that sees nothing."""
+KEPT_SCENES = 2
+"""Scenes whose rendered views a process keeps (the one its samples are on, and the one before)."""
 MIN_SEEN = 0.05
 """Share of its pixels with depth a camera needs to be a sample's reference: less (a window of sky with a
 pole in a corner) gives the crop nothing to find and the loss next to nothing to learn from."""
@@ -92,6 +96,7 @@ class SyntheticDataset(MVSDataset):
         if not 0.0 <= lo <= hi < 1.0:
             raise InputError(f"range_margin {range_margin} must be two fractions 0 <= low <= high < 1")
         self.range_margin = (lo, hi)
+        self._kept: OrderedDict = OrderedDict()
 
     def __len__(self) -> int:
         return self.num_scenes * self.views_per_scene
@@ -100,8 +105,29 @@ class SyntheticDataset(MVSDataset):
         scene, ref = divmod(index, self.views_per_scene)
         return f"synthetic scene seed {self.scene_seed + scene}, view {ref}"
 
-    def load_views(self, index: int, rng: np.random.Generator, height: int, width: int) -> ViewSet:
+    def _scene(self, seed: int, h: int, w: int):
+        """Scene ``seed`` at render size h x w and a function rendering its camera i as (image, depth), both
+        kept for the next samples of this process: samples of one scene in a row (``TrainConfig``'s
+        ``synthetic_scene_batches``) render each view once. Rendering is deterministic, so a kept view is
+        the one a new rendering would give."""
         from mvsformerpp.synth import render_view
+
+        key = (seed, h, w)
+        if key not in self._kept:
+            scene = self.source(seed=seed, num_views=self.views_per_scene, height=h, width=w, **self.options)
+            self._kept[key] = (scene, {})
+            while len(self._kept) > KEPT_SCENES:
+                self._kept.popitem(last=False)
+        self._kept.move_to_end(key)
+        scene, views = self._kept[key]
+
+        def render(i: int) -> tuple[np.ndarray, np.ndarray]:
+            if i not in views:
+                views[i] = render_view(scene, scene.cameras[i])[:2]
+            return views[i]
+        return scene, render
+
+    def load_views(self, index: int, rng: np.random.Generator, height: int, width: int) -> ViewSet:
         from mvsformerpp.synth.render import sensor_depth_range
 
         scene_idx, ref = divmod(index, self.views_per_scene)
@@ -110,12 +136,11 @@ class SyntheticDataset(MVSDataset):
         # camera of the scene is the reference then, and the next scene where no camera sees enough, so that
         # one odd sample does not end a run of hours (nor its resumption, which meets the same sample).
         for offset in range(EMPTY_SCENE_TRIES):
-            scene = self.source(seed=self.scene_seed + scene_idx + offset, num_views=self.views_per_scene,
-                                height=h, width=w, **self.options)
+            scene, render = self._scene(self.scene_seed + scene_idx + offset, h, w)
             n = len(scene.cameras)
             sighted = None
             for a in range(n):
-                first = render_view(scene, scene.cameras[(ref + a) % n])
+                first = render((ref + a) % n)
                 if (first[1] > 0).mean() >= MIN_SEEN:
                     sighted = (ref + a) % n
                     break
@@ -133,7 +158,7 @@ class SyntheticDataset(MVSDataset):
         views = []
         for k, i in enumerate([ref] + srcs):
             cam = scene.cameras[i]
-            image, depth, _ = first if k == 0 else render_view(scene, cam)
+            image, depth = first if k == 0 else render(i)
             E = np.eye(4)
             E[:3, :3], E[:3, 3] = cam.R, cam.t
             if k == 0:

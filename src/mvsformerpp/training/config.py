@@ -86,6 +86,12 @@ class TrainConfig:
     """Validation scenes (seeds after a gap of 10^6, never seen in training)."""
     synthetic_views_per_scene: int = 7
     """Cameras per synthetic scene (each a reference view once per epoch)."""
+    synthetic_scene_batches: bool = False
+    """Every view of a synthetic scene is a reference in the same batch, one after the other, and the scene
+    is rendered once for all of them: the training order shuffles whole scenes (blocks of
+    ``synthetic_views_per_scene`` samples) instead of single samples. Each sample then costs about one
+    rendered view instead of ``num_views`` (the renderer sets the pace of a GPU run); a batch holds
+    ``batch_size / synthetic_views_per_scene`` scenes, which must be a whole number."""
     synthetic_render_scale: float = 1.2
     """Render at the batch size times this, leaving room for the random resize and crop."""
     synthetic_range_margin: tuple[float, float] = (0.05, 0.05)
@@ -384,6 +390,11 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be >= 1 and synthetic_views_per_scene "
                          f">= num_views ({config.num_views}), got {config.synthetic_train_scenes}, "
                          f"{config.synthetic_val_scenes} and {config.synthetic_views_per_scene}")
+    if config.recipe == "synthetic" and config.synthetic_scene_batches and (
+            config.batch_size % config.synthetic_views_per_scene):
+        raise InputError(f"synthetic_scene_batches puts each scene's {config.synthetic_views_per_scene} views "
+                         f"(synthetic_views_per_scene) into one batch: batch_size must be a multiple of it, got "
+                         f"{config.batch_size} (--batch-size, or --set synthetic_views_per_scene=...)")
     if config.num_workers > MAX_WORKERS:
         raise InputError(f"num_workers must be at most {MAX_WORKERS} (each is a process rendering samples), got "
                          f"{config.num_workers:,} (--set num_workers=...)")

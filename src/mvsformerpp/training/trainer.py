@@ -117,6 +117,14 @@ def micro_batch_for(config: TrainConfig, height: int, per_rank: int) -> int:
     return max(1, min(config.micro_batch or per_rank, per_rank))
 
 
+def shuffle_block(config: TrainConfig) -> int:
+    """Consecutive samples the training order keeps together: a synthetic scene's views with
+    ``synthetic_scene_batches`` (rendered once for all of them), else 1."""
+    if config.recipe == "synthetic" and config.synthetic_scene_batches:
+        return config.synthetic_views_per_scene
+    return 1
+
+
 def _slice(batch, a: int, b: int):
     if isinstance(batch, dict):
         return {k: _slice(v, a, b) for k, v in batch.items()}
@@ -257,7 +265,8 @@ def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.D
             epoch, start = divmod(step, per_epoch)
             sampler = MultiScaleBatchSampler(len(train_ds), config.batch_size, config.resolutions or
                                              [(config.height, config.width)], seed=config.seed, epoch=epoch,
-                                             rank=info.rank, world_size=info.world_size, start=start)
+                                             rank=info.rank, world_size=info.world_size, start=start,
+                                             block=shuffle_block(config))
             # its own generator: a loader drawing its workers' seed from the global one would make a resumed
             # run's random state (saved in its checkpoints) differ from the uninterrupted run's
             loader = DataLoader(train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=config.num_workers,
