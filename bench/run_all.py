@@ -12,6 +12,7 @@ RUNS = [
     ["bench_cache.py"],
     ["bench_precision.py"],
     ["bench_lite.py", "--rounds", "1"],
+    ["bench_data.py", "--samples", "5"],
 ]
 
 for args in RUNS:
