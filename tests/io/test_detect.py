@@ -116,6 +116,24 @@ def test_info_command_text_and_json(tmp_path, capsys):
     assert views[1]["neighbors"] == [0] and views[1]["depth_gt"].endswith("depth_map_0001.pfm")
 
 
+def test_info_says_what_stage1_resolves_and_which_ranges_reconstruct_widens(capsys):
+    """``info`` prints stage 1's image shift per depth plane at reconstruct's working size; it is linear in
+    the inverse-depth step (the same middle, a 58x narrower range: 58x less shift), and views below
+    ``--min-parallax``'s default are named as the ones reconstruct widens."""
+    def parallax(lo, hi):
+        assert main(["info", str(TEMPLE), "--depth-range", str(lo), str(hi), "--json"]) == 0
+        return json.loads(capsys.readouterr().out)["stage1_parallax"]
+
+    wide, tight = parallax(0.5, 0.65), parallax(0.56, 0.5625)
+    assert wide["long_side"] == 640 and wide["views"] == 16 and wide["widened_views"] == []
+    ratio = (1 / 0.5 - 1 / 0.65) / (1 / 0.56 - 1 / 0.5625)
+    assert wide["shift"]["median"] / tight["shift"]["median"] == pytest.approx(ratio, rel=0.05)
+    assert tight["widened_views"] == list(range(16)) and tight["min_parallax"] == 0.15
+    assert main(["info", str(TEMPLE), "--depth-range", "0.56", "0.5625"]) == 0
+    out = capsys.readouterr().out
+    assert "px of image shift per depth plane" in out and "16 views below 0.15 px" in out
+
+
 def test_info_command_errors(tmp_path, capsys):
     Image.new("RGB", (8, 8)).save(tmp_path / "a.png")
     assert main(["info", str(tmp_path)]) == 2

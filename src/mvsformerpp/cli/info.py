@@ -40,6 +40,7 @@ def run(args: argparse.Namespace) -> int:
         short_range=args.short_range,
     )
     summary = summarize_scene(scene, layout, per_view=args.views)
+    summary["stage1_parallax"] = _stage1_parallax(scene)
     if layout in ("mvsnet", "tnt") and not args.depth_range:
         from pathlib import Path
 
@@ -52,3 +53,13 @@ def run(args: argparse.Namespace) -> int:
             summary["depth_lines"] = depth_line_forms(cam_dir, args.depth_format)
     print(json.dumps(summary, indent=2) if args.json else format_summary(summary))
     return 0
+
+
+def _stage1_parallax(scene):
+    """What stage 1's planes resolve with ``reconstruct``'s default settings on this machine (CPU)."""
+    import torch
+
+    from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+    from mvsformerpp.pipelines.run_plan import stage1_parallax
+
+    return stage1_parallax(scene, ReconstructConfig(), torch.device("cpu"))

@@ -21,7 +21,7 @@ import torch
 
 from mvsformerpp.inference.feature_cache import FeatureCache
 from mvsformerpp.inference.resolution import ViewResize
-from mvsformerpp.inference.search_range import search_range
+from mvsformerpp.inference.search_range import SearchRange, search_range
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models import prepared
 from mvsformerpp.models.inputs import normalize, stage_projections
@@ -50,6 +50,19 @@ def select_sources(scene: Scene, ref: int, num_views: int) -> list[int]:
     need = num_views - 1
     srcs = nbrs[:need]
     return srcs + [srcs[0]] * (need - len(srcs))
+
+
+def view_search_range(scene: Scene, plans: list[ViewResize], ref: int, num_views: int, min_parallax: float,
+                      planes: int = 32) -> SearchRange:
+    """The depth range stage 1 searches for reference view ``ref`` (:mod:`.search_range`) from the cameras of
+    its view set at their working resolution (``plans``) alone, and its shift per plane."""
+    ids = [ref] + select_sources(scene, ref, num_views)
+    views = [scene.views[i] for i in ids]
+    intr = [plans[i].scale_intrinsics(v.K) for i, v in zip(ids, views)]
+    extr = [v.extrinsic for v in views]
+    plan = plans[ref]
+    return search_range(intr[0], extr[0], list(zip(intr[1:], extr[1:])), views[0].depth_min, views[0].depth_max,
+                        plan.resized_width, plan.resized_height, min_parallax, planes)
 
 
 class SceneInference:
@@ -144,10 +157,7 @@ class SceneInference:
         extr = np.stack([v.extrinsic for v in views])
         intr = np.stack([self.plans[i].scale_intrinsics(v.K) for i, v in zip(ids, views)])
         projs = {k: v.to(self.device) for k, v in stage_projections(extr, intr).items()}
-        ref_view = self.scene.views[ref]
-        searched = search_range(intr[0], extr[0], list(zip(intr[1:], extr[1:])), ref_view.depth_min,
-                                ref_view.depth_max, plan.resized_width, plan.resized_height, self.min_parallax,
-                                self.stage1_planes)
+        searched = view_search_range(self.scene, self.plans, ref, self.num_views, self.min_parallax, self.stage1_planes)
         depth_values = torch.linspace(searched.depth_min, searched.depth_max, self.num_depth,
                                       dtype=torch.float32, device=self.device)[None]
         with autocast(self.device, self.precision):

@@ -76,6 +76,17 @@ def format_summary(s: dict[str, Any]) -> str:
     ]
     if s.get("depth_lines"):
         lines.insert(7, "depth lines:  " + ", ".join(f"{n} read as {form}" for form, n in s["depth_lines"].items()))
+    par = s.get("stage1_parallax")
+    if par:
+        widened = par["widened_views"]
+        shift = " / ".join(f"{par['shift'][k]:.3g}" for k in ("min", "median", "max"))
+        lines.append(f"stage 1:      {shift} px of image shift per depth plane (min / median / max over "
+                     f"{par['views']} views; reconstruct's defaults here: long side {par['long_side']} px, "
+                     f"{par['views_per_depth_map']} views per depth map)")
+        if widened:
+            names = ", ".join(str(i) for i in widened[:8]) + (" ..." if len(widened) > 8 else "")
+            lines.append(f"  tight:      {len(widened)} views below {par['min_parallax']:g} px ({names}): reconstruct "
+                         "widens their depth range (--min-parallax)")
     if "views" in s:
         lines.append("")
         lines.append(f"{'#':>4}  {'name':<24} {'size':>11}  {'focal':>9}  {'depth range':>23}  neighbours")

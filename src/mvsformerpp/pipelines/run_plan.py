@@ -137,3 +137,33 @@ def plan_line(plan: RunPlan, todo: list[int]) -> str:
 
 def _size(nbytes: float) -> str:
     return f"{nbytes / 2**30:.1f} GB" if nbytes >= 2**30 else f"{max(1, round(nbytes / 2**20))} MB"
+
+
+def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.device) -> dict | None:
+    """How far stage 1's neighbouring depth planes move the source images (stage-1 pixels per plane, summed
+    over a view's sources) at the working resolution ``reconstruct`` would choose here with ``config``:
+    min / median / max over the views that have a depth range and neighbours, and those whose range
+    ``--min-parallax`` widens (``info``). None when no view has both."""
+    import statistics
+
+    from mvsformerpp.inference.runner import view_search_range
+    from mvsformerpp.models.config import get_config
+
+    usable = [i for i, v in enumerate(scene.views) if v.neighbors and v.depth_min is not None
+              and v.depth_max is not None and 0 < v.depth_min < v.depth_max]
+    if not usable:
+        return None
+    num_views = min(config.num_views, len(scene))
+    long_side = working_long_side(scene, dataclasses.replace(config, num_views=num_views), device)
+    plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
+    planes = get_config(config.preset).num_hypotheses[0]
+    floor = config.stage1_min_parallax
+    shifts, widened = [], []
+    for i in usable:
+        searched = view_search_range(scene, plans, i, num_views, floor if floor > 0 else 1.0, planes)
+        shifts.append(searched.shift)
+        if floor > 0 and 0 < searched.shift < floor:
+            widened.append(i)
+    return {"long_side": long_side, "views_per_depth_map": num_views, "views": len(usable),
+            "shift": {"min": min(shifts), "median": statistics.median(shifts), "max": max(shifts)},
+            "min_parallax": floor, "widened_views": widened}
