@@ -13,7 +13,8 @@
 # transformer on random placements of its token grid (cvt_random_placement, docs/model-card.md).
 # SCENE_BATCHES=true (the default) renders each scene once for all its 5 views, every one a reference in the
 # same batch (synthetic_scene_batches; batches of 20, 4 scenes): the renderer, not the GPU, sets the pace,
-# and this leaves it about 3x fewer views to render per sample; false: the recipe's order, batches of 16.
+# and each sample costs one rendered view instead of four (3.8-4.6x less data time, bench/bench_data.py);
+# false: samples shuffled one by one, batches of 16.
 # Then, on any machine: python bench/eval_default_model.py --checkpoint OUT_DIR/weights/*.safetensors
 # --calibrate --json quality.json; python tools/ship_default_weights.py ... (docs/model-card.md).
 set -euo pipefail
@@ -40,6 +41,8 @@ fi
 ARGS+=(--set "window_guide=${GUIDE:-0}" --set "cvt_random_placement=${RANDOM_PLACEMENT:-false}")
 if [[ "${SCENE_BATCHES:-true}" == true ]]; then
     ARGS+=(--set synthetic_scene_batches=true --set synthetic_views_per_scene=5)
+else
+    ARGS+=(--set synthetic_scene_batches=false)
 fi
 RECIPE="${RECIPE:-configs/default-lite-synthetic-stage5.yaml}"
 RESUME=()

@@ -159,7 +159,7 @@ def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.devic
     planes = get_config(config.preset).num_hypotheses[0]
     floor = config.stage1_min_parallax
     shifts, widened = [], []
-    for i in usable:
+    for i in usable:  # (a floor of 0 keeps every range without measuring it: any positive one measures)
         searched = view_search_range(scene, plans, i, num_views, floor if floor > 0 else 1.0, planes)
         shifts.append(searched.shift)
         if floor > 0 and 0 < searched.shift < floor:
