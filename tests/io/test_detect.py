@@ -132,6 +132,9 @@ def test_info_says_what_stage1_resolves_and_which_ranges_reconstruct_widens(caps
     assert main(["info", str(TEMPLE), "--depth-range", "0.56", "0.5625"]) == 0
     out = capsys.readouterr().out
     assert "px of image shift per depth plane" in out and "16 views below 0.15 px" in out
+    assert main(["info", str(TEMPLE), "--depth-range", "0.56", "0.5625", "--preset", "paper", "--json"]) == 0
+    paper = json.loads(capsys.readouterr().out)["stage1_parallax"]  # the paper preset widens nothing by default
+    assert paper["min_parallax"] == 0 and paper["widened_views"] == [] and paper["shift"]["median"] > 0
 
 
 def test_info_command_errors(tmp_path, capsys):

@@ -22,6 +22,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="how to read a two-number cam depth line: min+interval, min+max, or guess (default)")
     p.add_argument("--scan", help="DTU scan to show (e.g. scan1) when the layout holds several")
     p.add_argument("--short-range", action="store_true", help="Tanks and Temples: use short_range_cameras")
+    p.add_argument("--preset", choices=["lite", "paper"], default="lite",
+                   help="the network whose reconstruct defaults the stage-1 line assumes (default lite)")
     p.set_defaults(func=run)
 
 
@@ -40,7 +42,7 @@ def run(args: argparse.Namespace) -> int:
         short_range=args.short_range,
     )
     summary = summarize_scene(scene, layout, per_view=args.views)
-    summary["stage1_parallax"] = _stage1_parallax(scene)
+    summary["stage1_parallax"] = _stage1_parallax(scene, args.preset)
     if layout in ("mvsnet", "tnt") and not args.depth_range:
         from pathlib import Path
 
@@ -55,11 +57,11 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
-def _stage1_parallax(scene):
-    """What stage 1's planes resolve with ``reconstruct``'s default settings on this machine (CPU)."""
+def _stage1_parallax(scene, preset: str):
+    """What stage 1's planes resolve with ``reconstruct --preset PRESET``'s defaults on this machine (CPU)."""
     import torch
 
     from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
     from mvsformerpp.pipelines.run_plan import stage1_parallax
 
-    return stage1_parallax(scene, ReconstructConfig(), torch.device("cpu"))
+    return stage1_parallax(scene, ReconstructConfig(preset=preset), torch.device("cpu"))
