@@ -1,9 +1,9 @@
-"""Benchmark: what a synthetic training sample costs to make, in the recipe's order and in scene batches.
+"""Benchmark: what a synthetic training sample costs to make, shuffled one by one and in scene batches.
 
 A synthetic recipe renders its samples while it trains (``mvsformerpp.data.synthetic``); on a GPU machine
 the data workers, not the network, can set the pace. Per size, the first batches of an epoch are made in
-one process as a data worker makes them, once in the recipe's own order (samples shuffled one by one) and
-once with ``synthetic_scene_batches`` (whole scenes in a row, each view rendered once for all of them);
+one process as a data worker makes them, once with samples shuffled one by one and once with
+``synthetic_scene_batches`` (whole scenes in a row, each view rendered once for all of them);
 the table gives seconds and rendered views per sample and the ratio, and what a step of the recipe's
 batch would wait for its data with ``--workers`` processes (the batch rounded up to whole scenes for the
 scene batches).
@@ -81,11 +81,11 @@ def main() -> None:
     print(f"synthetic samples of {Path(a.recipe).name}, {a.samples} per size and order, one process "
           f"({os.cpu_count()} CPUs); data wait per step: the recipe's batch of {batch} ({whole} in scene "
           f"batches) over {a.workers} workers")
-    print(f"{'crop':>9} {'s/sample':>9} {'renders':>8} {'scenes s/sample':>16} {'renders':>8} {'speed-up':>9} "
-          f"{'step wait':>10} {'scenes':>7}")
+    print(f"{'crop':>9} {'shuffled s/sample':>17} {'renders':>8} {'scenes s/sample':>16} {'renders':>8} "
+          f"{'speed-up':>9} {'step wait':>10} {'scenes':>7}")
     for r in rows:
         p, s = r["plain"], r["scene_batches"]
-        print(f"{r['size']:>9} {p['s_per_sample']:9.2f} {p['renders_per_sample']:8.2f} {s['s_per_sample']:16.2f} "
+        print(f"{r['size']:>9} {p['s_per_sample']:17.2f} {p['renders_per_sample']:8.2f} {s['s_per_sample']:16.2f} "
               f"{s['renders_per_sample']:8.2f} {r['speedup']:8.2f}x {r['step_wait_s']['plain']:9.2f}s "
               f"{r['step_wait_s']['scene_batches']:6.2f}s")
     if a.json:
