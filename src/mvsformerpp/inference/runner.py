@@ -52,17 +52,21 @@ def select_sources(scene: Scene, ref: int, num_views: int) -> list[int]:
     return srcs + [srcs[0]] * (need - len(srcs))
 
 
+def view_cameras(scene: Scene, plans: list[ViewResize], ref: int, num_views: int):
+    """``(K_ref, E_ref, [(K, E) per source], width, height)`` of reference view ``ref``'s view set at the working
+    resolution (``plans``): what :mod:`.search_range` measures stage 1's shift per plane from."""
+    ids = [ref] + select_sources(scene, ref, num_views)
+    cams = [(plans[i].scale_intrinsics(scene.views[i].K), scene.views[i].extrinsic) for i in ids]
+    return (*cams[0], cams[1:], plans[ref].resized_width, plans[ref].resized_height)
+
+
 def view_search_range(scene: Scene, plans: list[ViewResize], ref: int, num_views: int, min_parallax: float,
                       planes: int = 32) -> SearchRange:
-    """The depth range stage 1 searches for reference view ``ref`` (:mod:`.search_range`) from the cameras of
-    its view set at their working resolution (``plans``) alone, and its shift per plane."""
-    ids = [ref] + select_sources(scene, ref, num_views)
-    views = [scene.views[i] for i in ids]
-    intr = [plans[i].scale_intrinsics(v.K) for i, v in zip(ids, views)]
-    extr = [v.extrinsic for v in views]
-    plan = plans[ref]
-    return search_range(intr[0], extr[0], list(zip(intr[1:], extr[1:])), views[0].depth_min, views[0].depth_max,
-                        plan.resized_width, plan.resized_height, min_parallax, planes)
+    """The depth range stage 1 searches for reference view ``ref`` (:mod:`.search_range`), from the cameras of
+    its view set alone."""
+    K, E, sources, width, height = view_cameras(scene, plans, ref, num_views)
+    view = scene.views[ref]
+    return search_range(K, E, sources, view.depth_min, view.depth_max, width, height, min_parallax, planes)
 
 
 class SceneInference:

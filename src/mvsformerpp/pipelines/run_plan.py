@@ -146,7 +146,8 @@ def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.devic
     ``--min-parallax`` widens (``info``). None when no view has both."""
     import statistics
 
-    from mvsformerpp.inference.runner import view_search_range
+    from mvsformerpp.inference.runner import view_cameras
+    from mvsformerpp.inference.search_range import search_range, stage1_shift
     from mvsformerpp.models.config import get_config
 
     usable = [i for i, v in enumerate(scene.views) if v.neighbors and v.depth_min is not None
@@ -159,11 +160,16 @@ def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.devic
     planes = get_config(config.preset).num_hypotheses[0]
     floor = config.stage1_min_parallax
     shifts, widened = [], []
-    for i in usable:  # (a floor of 0 keeps every range without measuring it: any positive one measures)
-        searched = view_search_range(scene, plans, i, num_views, floor if floor > 0 else 1.0, planes)
-        shifts.append(searched.shift)
-        if floor > 0 and 0 < searched.shift < floor:
-            widened.append(i)
+    for i in usable:
+        K, E, sources, width, height = view_cameras(scene, plans, i, num_views)
+        near, far = scene.views[i].depth_min, scene.views[i].depth_max
+        if floor > 0:
+            searched = search_range(K, E, sources, near, far, width, height, floor, planes)
+            shifts.append(searched.shift)
+            if searched.factor > 1:
+                widened.append(i)
+        else:  # (search_range keeps every range without measuring it)
+            shifts.append(stage1_shift(K, E, sources, near, far, width, height, planes))
     return {"long_side": long_side, "views_per_depth_map": num_views, "views": len(usable),
             "shift": {"min": min(shifts), "median": statistics.median(shifts), "max": max(shifts)},
             "min_parallax": floor, "widened_views": widened}
