@@ -505,6 +505,8 @@ CASES: list[Case] = [
     Case("train-scene-batches-split", "train --set synthetic_scene_batches=true with a batch that splits a scene",
          train_set("synthetic_scene_batches=true", "batch_size=4"),
          "synthetic_scene_batches"),
+    Case("train-placements-both", "train --set cvt_train_shifts=true --set cvt_random_placement=true",
+         train_set("cvt_train_shifts=true", "cvt_random_placement=true"), "set at most one of them true"),
     Case("train-stages-five", "train --set train_stages=5",
          train_set("train_stages=5"), "train_stages"),
     Case("train-trainable-typo", "train --set trainable=[fusion.0] (no parameter has that name)",

@@ -602,6 +602,34 @@ def test_training_with_random_placement_decodes_the_volume_under_a_drawn_shift()
         assert torch.equal(a, cvt(volume))
 
 
+def test_training_on_the_placement_average_runs_inferences_average_with_gradients():
+    """With ``average_in_training`` a training pass returns the mean over the ``shifts`` placements (each a
+    single pass over the volume padded by its repeated border cells, cropped back), the gradient is the
+    gradient of that mean taken out of place, and without it training runs one placement."""
+    from mvsformerpp.models.cvt import CostVolumeTransformer
+
+    torch.manual_seed(6)
+    cvt = CostVolumeTransformer(num_layers=1, shifts=2).train()
+    volume = torch.randn(1, 8, 8, 8, 12)
+
+    def single(v, s):
+        return cvt._logits(_clamp_padded(v, s, s))[..., s:s + 8, s:s + 12]
+
+    cvt.average_in_training = True
+    v1 = volume.clone().requires_grad_()
+    out = cvt(v1)
+    (out * torch.linspace(-1, 1, out.numel()).view_as(out)).sum().backward()
+    v2 = volume.clone().requires_grad_()
+    expected = (single(v2, 0) + single(v2, 2)) / 2
+    (expected * torch.linspace(-1, 1, out.numel()).view_as(out)).sum().backward()
+    assert torch.allclose(out, expected, atol=1e-5)
+    assert torch.allclose(v1.grad, v2.grad, atol=1e-6)
+    assert not torch.allclose(single(volume, 0), single(volume, 2), atol=1e-3)  # the placements differ
+    cvt.average_in_training = False
+    with torch.no_grad():
+        assert torch.equal(cvt(volume), cvt._logits(volume))
+
+
 def test_precomputed_features_give_the_same_output_and_can_be_released():
     model = build_model("lite").eval()
     imgs, proj, dv = _random_batch(1, 3, 64, 96)

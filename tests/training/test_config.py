@@ -62,6 +62,20 @@ def test_random_placement_reaches_stage_1s_transformer():
     assert build_training_model(cfg).fusions[0].cost_reg.random_placement is False
 
 
+def test_placement_average_reaches_stage_1s_transformer_and_excludes_random_placement():
+    """``cvt_train_shifts`` makes the training model's stage-1 transformer average the preset's placements
+    (the lite preset's two); asking for random placements as well is refused."""
+    from mvsformerpp.training.trainer import build_training_model
+
+    cfg = load_config("synthetic", parse_overrides(["cvt_train_shifts=true", "xavier_init=false"]))
+    cvt = build_training_model(cfg).fusions[0].cost_reg
+    assert cvt.average_in_training is True and cvt.shifts == 2
+    cfg = load_config("synthetic", parse_overrides(["xavier_init=false"]))
+    assert build_training_model(cfg).fusions[0].cost_reg.average_in_training is False
+    with pytest.raises(InputError, match="set at most one of them true"):
+        load_config("synthetic", parse_overrides(["cvt_train_shifts=true", "cvt_random_placement=true"]))
+
+
 @pytest.mark.parametrize("item,match", [("nosuchfield=1", "unknown training config keys"),
                                         ("lr=fast", "needs a number"), ("precision=fp8", "must be one of"),
                                         ("loss_weights=[1,2]", "needs 4 values"), ("lr", "key=value")])

@@ -139,6 +139,7 @@ class CostVolumeTransformer(nn.Module):
                              f"got {shifts}")
         self.shifts = int(shifts)
         self.random_placement = False  # training only: see TrainConfig.cvt_random_placement
+        self.average_in_training = False  # training only: see TrainConfig.cvt_train_shifts
         if local_box < 1 or local_box % 2 == 0:
             raise ValueError(f"local_evidence_box must be an odd number of cells >= 1, got {local_box}")
         if local_gate is not None and not (len(local_gate) == 2 and local_gate[0] < local_gate[1]):
@@ -172,7 +173,7 @@ class CostVolumeTransformer(nn.Module):
         if self.training and self.random_placement:
             ph, pw = self.down[0].kernel_size[1:]
             logits = self._placed_logits(volume, int(torch.randint(ph, ())), int(torch.randint(pw, ())))
-        elif self.training or self.shifts == 1:
+        elif self.shifts == 1 or (self.training and not self.average_in_training):
             logits = self._logits(volume)
         else:
             logits = self._shift_averaged(volume)

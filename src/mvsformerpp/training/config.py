@@ -142,6 +142,11 @@ class TrainConfig:
     left, border cells repeated, the logits cropped back) at every training step, instead of always at the
     volume's corner: no position inside a 4x4-cell patch is then special to the network, and every placement
     that inference averages (``cvt_shifts``) is one it was trained on (False: the reference's training)."""
+    cvt_train_shifts: bool = False
+    """Train stage 1 on what inference computes: the mean of its transformer's logits over the preset's
+    ``cvt_shifts`` placements of the token grid (:meth:`~mvsformerpp.models.cvt.CostVolumeTransformer.
+    _shift_averaged`), so the finer stages also train around that estimate (False: one placement, at the
+    volume's corner, as the reference trains)."""
     train_stages: int = 4
     """Cascade stages a training step runs and scores (1-4): fewer trains the coarse stages alone at a
     fraction of the cost (the later stages are frozen; validation still runs all four)."""
@@ -410,6 +415,9 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError(f"loss_weights must be four numbers >= 0, got {list(config.loss_weights)}")
     if not 1 <= config.train_stages <= 4:
         raise InputError(f"train_stages must be 1, 2, 3 or 4 (the cascade stages trained), got {config.train_stages}")
+    if config.cvt_random_placement and config.cvt_train_shifts:
+        raise InputError("cvt_random_placement and cvt_train_shifts each choose where stage 1's token grid lies in "
+                         "training: set at most one of them true")
     if config.recipe == "synthetic":
         from mvsformerpp.data.synthetic import resolve_source
 

@@ -56,7 +56,8 @@ def init_fmt_xavier(model: MVSFormerPP) -> None:
 
 def build_training_model(config: TrainConfig) -> MVSFormerPP:
     """The preset's network, FMT xavier-initialised (from scratch) or loaded from ``init_checkpoint``; stage 1's
-    transformer placed at random in training when ``cvt_random_placement``."""
+    transformer placed at random in training when ``cvt_random_placement``, or averaged over the inference's
+    placements when ``cvt_train_shifts``."""
     from mvsformerpp.models.checkpoint import load_checkpoint
 
     torch.manual_seed(config.seed)
@@ -66,6 +67,7 @@ def build_training_model(config: TrainConfig) -> MVSFormerPP:
     if config.init_checkpoint:
         load_checkpoint(model, config.init_checkpoint)
     model.fusions[0].cost_reg.random_placement = config.cvt_random_placement
+    model.fusions[0].cost_reg.average_in_training = config.cvt_train_shifts
     return model
 
 
