@@ -10,7 +10,8 @@
 # configs/default-lite-synthetic-large-crops.yaml: phase 8's views at crops up to 512x640). GUIDE=P sets
 # window_guide (default 0, the recipe as it is; 0.5 lets half the samples search their fine stages around
 # the true depth, the guided windows of docs/model-card.md). RANDOM_PLACEMENT=true trains stage 1's
-# transformer on random placements of its token grid (cvt_random_placement, docs/model-card.md).
+# transformer on random placements of its token grid (cvt_random_placement, docs/model-card.md);
+# TRAIN_SHIFTS=true on the mean over the placements inference averages (cvt_train_shifts; not both).
 # SCENE_BATCHES=true (the default) renders each scene once for all its 5 views, every one a reference in the
 # same batch (synthetic_scene_batches; batches of 20, 4 scenes): the renderer, not the GPU, sets the pace,
 # and each sample costs one rendered view instead of four (3.8-4.6x less data time, bench/bench_data.py);
@@ -38,7 +39,8 @@ else
     ARGS=(--device cuda --precision bf16 --max-steps "$STEPS" --batch-size "$BATCH"
           --set "num_workers=$WORKERS" --set val_every=200 --set save_every=100)
 fi
-ARGS+=(--set "window_guide=${GUIDE:-0}" --set "cvt_random_placement=${RANDOM_PLACEMENT:-false}")
+ARGS+=(--set "window_guide=${GUIDE:-0}" --set "cvt_random_placement=${RANDOM_PLACEMENT:-false}"
+       --set "cvt_train_shifts=${TRAIN_SHIFTS:-false}")
 if [[ "${SCENE_BATCHES:-true}" == true ]]; then
     ARGS+=(--set synthetic_scene_batches=true --set synthetic_views_per_scene=5)
 else

@@ -110,12 +110,13 @@ def test_a_full_disk_at_the_first_save_says_to_start_again_not_to_resume(tmp_pat
     assert run_training(cfg, run)["steps"] == 1  # as advised
 
 
-@pytest.mark.parametrize(("recipe", "scene_batches"), [(None, "true"), (LARGE_CROPS, "true"), (LARGE_CROPS, "false")])
-def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path, recipe, scene_batches):
+@pytest.mark.parametrize(("recipe", "scene_batches", "train_shifts"),
+                         [(None, "true", "false"), (LARGE_CROPS, "true", "false"), (LARGE_CROPS, "false", "true")])
+def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path, recipe, scene_batches, train_shifts):
     """tools/train_gpu.sh is what a GPU machine without an install step runs: its --dry-run (the same script
     on the CPU, a few steps of the phase-4 recipe, or of the recipe given as RECIPE) trains from the shipped
     weights and exports weights in the shipped format, with the run's config and metrics beside them; in scene
-    batches unless SCENE_BATCHES=false, even for a recipe that asks for them."""
+    batches unless SCENE_BATCHES=false, even for a recipe that asks for them; TRAIN_SHIFTS=true reaches the run."""
     import os
     import subprocess
     import sys
@@ -124,7 +125,7 @@ def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path, r
 
     root = Path(__file__).resolve().parents[2]
     env = {**os.environ, "PY": sys.executable, "OMP_NUM_THREADS": "1", "SCENE_BATCHES": scene_batches,
-           **({"RECIPE": recipe} if recipe else {})}
+           "TRAIN_SHIFTS": train_shifts, **({"RECIPE": recipe} if recipe else {})}
     done = subprocess.run(["bash", str(root / "tools" / "train_gpu.sh"), "--dry-run", str(tmp_path / "out")],
                           env=env, capture_output=True, text=True, timeout=300)
     assert done.returncode == 0, done.stderr[-2000:]
@@ -135,6 +136,7 @@ def test_the_gpu_training_script_runs_from_a_checkout_in_its_dry_run(tmp_path, r
     assert config["resolutions"] == [[64, 96]] and config["min_overlap"] == 0.6  # the recipe, shrunk
     whole = scene_batches == "true"
     assert config["synthetic_scene_batches"] == whole and config["batch_size"] == (5 if whole else 2)
+    assert config["cvt_train_shifts"] == (train_shifts == "true") and config["cvt_random_placement"] is False
     if recipe:
         assert config["synthetic_options"]["sensor_width"] == [800, 3200] and config["micro_batch"] == 10
     rows = [json.loads(line) for line in (tmp_path / "out" / "metrics.jsonl").read_text().splitlines()]
