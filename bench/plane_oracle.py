@@ -61,8 +61,8 @@ def oracle_counts(imgs, Ks, Es, depth, depth_min: float, depth_max: float, gener
     import torch
 
     from mvsformerpp.geometry.warping import homography_warp, projection_4x4
-    from mvsformerpp.models.config import get_config
     from mvsformerpp.models.inputs import stage_projections
+    from mvsformerpp.models.presets import get_config
     from mvsformerpp.training.parallax import plane_steps
 
     cfg = get_config("lite")

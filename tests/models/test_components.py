@@ -13,6 +13,7 @@ from mvsformerpp.models.dinov2 import DinoVisionTransformer
 from mvsformerpp.models.fmt import sine_position_encoding_2d
 from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
 from mvsformerpp.models.loss import stage_ce_loss
+from mvsformerpp.models.presets import PRESETS
 
 
 def test_linear_attention_matches_its_quadratic_formula():
@@ -336,15 +337,16 @@ def test_auto_precision_takes_bf16_attention_only_for_lite_on_cpus_with_amx(monk
 
     for flags, amx in (({"avx512_bf16", "amx_bf16"}, True), ({"avx512_bf16"}, False), (set(), False)):
         monkeypatch.setattr(precision, "cpu_bf16_flags", lambda flags=flags: frozenset(flags))
-        assert precision.attention_in_bf16("cpu", "auto", "lite") is amx
-        assert precision.attention_in_bf16("cpu", "auto", "paper") is False
-        assert precision.attention_in_bf16("cuda", "auto", "lite") is False
-        assert precision.attention_in_bf16("cpu", "fp32", "lite") is False
-        assert precision.describe_precision("cpu", "auto", "lite") == ("auto: fp32, stage-1 attention in bf16" if amx
-                                                                       else "auto: fp32")
-        assert precision.describe_precision("cpu", "bf16", "lite") == "bf16"
+        lite, paper = PRESETS["lite"].attention_bf16, PRESETS["paper"].attention_bf16
+        assert precision.attention_in_bf16("cpu", "auto", lite) is amx
+        assert precision.attention_in_bf16("cpu", "auto", paper) is False
+        assert precision.attention_in_bf16("cuda", "auto", lite) is False
+        assert precision.attention_in_bf16("cpu", "fp32", lite) is False
+        assert precision.describe_precision("cpu", "auto", lite) == ("auto: fp32, stage-1 attention in bf16" if amx
+                                                                     else "auto: fp32")
+        assert precision.describe_precision("cpu", "bf16", lite) == "bf16"
     with pytest.raises(ValueError, match="precision must be one of"):
-        precision.attention_in_bf16("cpu", "fp8", "lite")
+        precision.attention_in_bf16("cpu", "fp8", True)
     model = build_model("lite")
     for on in (True, False):
         SceneInference(model, None, [], None, num_views=3, attention_bf16=on)

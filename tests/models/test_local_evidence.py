@@ -4,8 +4,9 @@ import pytest
 import torch
 
 from mvsformerpp.models import build_model
-from mvsformerpp.models.config import architecture, get_config
+from mvsformerpp.models.config import architecture
 from mvsformerpp.models.cvt import CostVolumeTransformer, local_evidence
+from mvsformerpp.models.presets import get_config
 
 
 def _noisy_volume(seed=0, B=1, G=8, D=32, H=48, W=64, noise=3.0):

@@ -9,8 +9,8 @@ import torch
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.models import shipped
 from mvsformerpp.models.checkpoint import read_safetensors, save_checkpoint
-from mvsformerpp.models.config import get_config, presets_for
 from mvsformerpp.models.mvsformer import build_model
+from mvsformerpp.models.presets import get_config, presets_for
 
 
 def _tiny_inputs(H=64, W=96, V=2):

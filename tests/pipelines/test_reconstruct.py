@@ -15,6 +15,7 @@ from mvsformerpp.errors import InputError, MVSFormerError
 from mvsformerpp.io.mvsnet import read_cam, read_pair, write_mvsnet_scene
 from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
+from mvsformerpp.models.presets import PRESETS
 from mvsformerpp.pipelines.demo import temple_dir
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
@@ -93,7 +94,7 @@ def test_end_to_end_temple_with_the_lite_network(scene4, tmp_path):
     from mvsformerpp.utils.precision import describe_precision
 
     assert saved["config"]["precision"] == "auto"  # the default, recorded with what it resolved to here
-    assert saved["resolved"]["precision"] == describe_precision("cpu", "auto", "lite")
+    assert saved["resolved"]["precision"] == describe_precision("cpu", "auto", PRESETS["lite"].attention_bf16)
     assert json.loads((out / "summary.json").read_text())["views"] == 4
     assert not list(out.rglob("*.tmp"))
 

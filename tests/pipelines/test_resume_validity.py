@@ -90,7 +90,7 @@ def test_a_changed_network_setting_recomputes_every_view(tmp_path):
     fingerprint: the default is the preset's value, so asking for it explicitly reuses the maps."""
     import dataclasses
 
-    from mvsformerpp.models.config import get_config
+    from mvsformerpp.models.presets import get_config
 
     src, out = scene(tmp_path / "s"), tmp_path / "out"
 
@@ -113,7 +113,7 @@ def test_the_least_stage1_parallax_is_part_of_every_view_s_settings(tmp_path):
     import dataclasses
     import json
 
-    from mvsformerpp.pipelines.reconstruct_config import DEFAULT_MIN_PARALLAX
+    from mvsformerpp.models.presets import PRESETS
 
     src, out = scene(tmp_path / "s"), tmp_path / "out"
 
@@ -150,7 +150,7 @@ def test_the_least_stage1_parallax_is_part_of_every_view_s_settings(tmp_path):
     assert rewritten(min_parallax=4.0) == set()  # views kept from the earlier run keep their searched range
     check_widened()
     assert rewritten() == {0, 1, 2, 3}
-    assert rewritten(min_parallax=DEFAULT_MIN_PARALLAX[FAST.preset]) == set()
+    assert rewritten(min_parallax=PRESETS[FAST.preset].min_parallax) == set()
     assert rewritten(min_parallax=0.0) == {0, 1, 2, 3}
     assert json.loads((out / "summary.json").read_text())["search_ranges"]["widened_views"] == []
     assert all(v.searched is None for v in open_run(out).views)

@@ -91,7 +91,7 @@ def test_differences_ignore_fields_that_do_not_change_the_trajectory():
 
 
 def test_finetune_preset_and_recipe_loss_weights():
-    from mvsformerpp.models.config import get_config
+    from mvsformerpp.models.presets import get_config
 
     assert get_config("paper").loss_weights == (1.0, 1.0, 1.0, 1.0)
     assert get_config("paper_finetune").loss_weights == (0.0, 0.0, 0.0, 1.0)  # the reference's fine-tune loss

@@ -7,8 +7,8 @@ import pytest
 import torch
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.models.config import get_config
 from mvsformerpp.models.hypotheses import initial_hypotheses, refined_hypotheses
+from mvsformerpp.models.presets import get_config
 from mvsformerpp.training.config import load_config
 from mvsformerpp.training.parallax import (
     SCALES,

@@ -5,6 +5,9 @@ from __future__ import annotations
 import argparse
 import json
 
+from mvsformerpp.models.presets import RECONSTRUCT_PRESETS
+from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+
 
 def register(subparsers: argparse._SubParsersAction) -> None:
     p = subparsers.add_parser(
@@ -22,8 +25,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    help="how to read a two-number cam depth line: min+interval, min+max, or guess (default)")
     p.add_argument("--scan", help="DTU scan to show (e.g. scan1) when the layout holds several")
     p.add_argument("--short-range", action="store_true", help="Tanks and Temples: use short_range_cameras")
-    p.add_argument("--preset", choices=["lite", "paper"], default="lite",
-                   help="the network whose reconstruct defaults the stage-1 line assumes (default lite)")
+    p.add_argument("--preset", choices=RECONSTRUCT_PRESETS, default=ReconstructConfig.preset,
+                   help=f"the network whose reconstruct defaults the stage-1 line assumes (default "
+                        f"{ReconstructConfig.preset})")
     p.set_defaults(func=run)
 
 
@@ -61,7 +65,6 @@ def _stage1_parallax(scene, preset: str):
     """What stage 1's planes resolve with ``reconstruct --preset PRESET``'s defaults on this machine (CPU)."""
     import torch
 
-    from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
     from mvsformerpp.pipelines.run_plan import stage1_parallax
 
     return stage1_parallax(scene, ReconstructConfig(preset=preset), torch.device("cpu"))

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from mvsformerpp.models.presets import PRESET_NAMES
+
 # Command-line options that set a config field directly: option dest -> field.
 _FIELDS = {"data_root": "data_root", "train_list": "train_list", "val_list": "val_list", "preset": "preset",
            "checkpoint": "init_checkpoint", "max_steps": "max_steps", "epochs": "epochs",
@@ -24,7 +26,7 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--data-root", help="data set root (DTU; BlendedMVS for blended_finetune)")
     p.add_argument("--train-list", help="file listing the training scans/scenes")
     p.add_argument("--val-list", help="file listing the validation scans/scenes")
-    p.add_argument("--preset", choices=("lite", "paper", "paper_finetune"), help="network preset")
+    p.add_argument("--preset", choices=PRESET_NAMES, help="network preset")
     p.add_argument("--checkpoint", metavar="INIT", help="weights to start from")
     p.add_argument("--max-steps", type=int, help="optimiser steps (default: epochs x batches per epoch)")
     p.add_argument("--epochs", type=int)

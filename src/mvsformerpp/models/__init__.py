@@ -1,8 +1,29 @@
-"""The MVSFormer++ network: tensors in, tensors out (no files, no CLI)."""
+"""The MVSFormer++ network: tensors in, tensors out (no files, no CLI).
 
-from mvsformerpp.models.checkpoint import load_checkpoint, load_model, save_checkpoint
-from mvsformerpp.models.config import PRESETS, ModelConfig, get_config
-from mvsformerpp.models.mvsformer import MVSFormerPP, build_model
+The presets and configuration are imported eagerly (the command line reads its ``--preset`` choices from
+them without torch: tests/cli/test_startup.py); the network and checkpoint code, which need torch, on first
+use of their names.
+"""
+
+from __future__ import annotations
+
+import importlib
+
+from mvsformerpp.models.config import ModelConfig
+from mvsformerpp.models.presets import PRESETS, get_config
 
 __all__ = ["MVSFormerPP", "ModelConfig", "PRESETS", "build_model", "get_config", "load_checkpoint", "load_model",
            "save_checkpoint"]
+
+_LAZY = {"MVSFormerPP": "mvsformer", "build_model": "mvsformer", "load_checkpoint": "checkpoint",
+         "load_model": "checkpoint", "save_checkpoint": "checkpoint"}
+
+
+def __getattr__(name: str):
+    if name in _LAZY:
+        return getattr(importlib.import_module(f"mvsformerpp.models.{_LAZY[name]}"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(_LAZY))

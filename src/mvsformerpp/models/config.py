@@ -1,4 +1,4 @@
-"""Network configuration: a frozen dataclass with named presets."""
+"""Network configuration: one frozen dataclass of every hyper-parameter (the named presets: :mod:`.presets`)."""
 
 from __future__ import annotations
 
@@ -75,29 +75,6 @@ class ModelConfig:
         return cls(**kw)
 
 
-PRESETS: dict[str, ModelConfig] = {
-    "paper": ModelConfig(),
-    # BlendedMVS+DTU fine-tuning (mvsformer++_ft.json): the same network and weights layout. Its loss
-    # supervises stage 4 only (the reference's ce_loss returns the last stage's loss); the
-    # training recipe blended_finetune overrides this with all four stages unless loss_weights is null.
-    "paper_finetune": ModelConfig(loss_weights=(0.0, 0.0, 0.0, 1.0)),
-    # Same architecture, much smaller ViT and SVA, trainable backbone (no pretrained weights exist).
-    # Stage 1 adds the cost volume's own window-aggregated evidence to its transformer's logits (weight and
-    # window chosen on synthetic calibration scenes: docs/model-card.md, "Stage 1's local evidence"), gated
-    # by its own peak so that windows with nothing to match (painted walls) add nothing ("Painted walls").
-    # Its transformer runs over two placements of its token grid, which halves the 32-pixel block pattern
-    # for one more pass (four remove it for three: "Stage 1's token grid in several placements").
-    "lite": ModelConfig(vit_dim=192, vit_depth=6, vit_heads=3, sva_heads=3, freeze_vit=False, cvt_layers=2,
-                        local_evidence=2.0, local_evidence_box=13, local_evidence_gate=(1.5, 2.2), cvt_shifts=2),
-}
-
-
-def get_config(preset: str = "paper", **overrides) -> ModelConfig:
-    if preset not in PRESETS:
-        raise ValueError(f"unknown preset {preset!r}; choose one of {sorted(PRESETS)}")
-    return dataclasses.replace(PRESETS[preset], **overrides)
-
-
 # Fields that change the depth maps of a trained network at inference, not which weights fit it.
 INFERENCE_SETTINGS = ("local_evidence", "local_evidence_box", "local_evidence_gate", "cvt_shifts")
 # Fields that change only how a network runs or trains, not which weights fit it.
@@ -107,9 +84,3 @@ _NON_ARCHITECTURE = ("attention_backend", "temperatures", "loss_weights", "freez
 def architecture(config: ModelConfig) -> dict:
     """The fields of ``config`` that decide the shapes of the weights."""
     return {k: v for k, v in config.to_dict().items() if k not in _NON_ARCHITECTURE}
-
-
-def presets_for(config: ModelConfig) -> list[str]:
-    """Names of the presets whose weights have the shapes of ``config``'s network (may be empty)."""
-    arch = architecture(config)
-    return [name for name, preset in PRESETS.items() if architecture(preset) == arch]

@@ -15,6 +15,7 @@ from mvsformerpp.models.features import ImageFeatures, decode_views, encode_imag
 from mvsformerpp.models.fmt import FMTWithPathway
 from mvsformerpp.models.fpn import FPNDecoder, FPNEncoder
 from mvsformerpp.models.hypotheses import initial_hypotheses, plane_step, refined_hypotheses
+from mvsformerpp.models.presets import get_config
 from mvsformerpp.models.sva import SideViewAttention
 
 
@@ -198,7 +199,5 @@ def _guided_centre(estimate: torch.Tensor, prev_hypotheses: torch.Tensor, depth:
 
 
 def build_model(preset: str = "paper", **overrides) -> MVSFormerPP:
-    """The network for a named preset (``paper``, ``paper_finetune``, ``lite``) with config overrides."""
-    from mvsformerpp.models.config import get_config
-
+    """The network for a named preset (:data:`~mvsformerpp.models.presets.PRESETS`) with config overrides."""
     return MVSFormerPP(get_config(preset, **overrides))

@@ -18,9 +18,11 @@ from pathlib import Path
 import torch
 
 from mvsformerpp.errors import FormatError, InputError
+from mvsformerpp.models.config import architecture
+from mvsformerpp.models.presets import PRESETS
 
-SHIPPED_PRESET = "lite"
-"""The preset the package ships trained weights for."""
+SHIPPED_PRESET = next(name for name, preset in PRESETS.items() if preset.shipped_weights)
+"""The preset the package ships trained weights for (its record in :mod:`.presets` says so)."""
 WEIGHTS_DIR = Path(__file__).resolve().parent.parent / "assets" / "weights"
 RECORD = "default.json"
 RESTORE = ("reinstall mvsformerpp (pip install --force-reinstall --no-deps mvsformerpp; in a source checkout, "
@@ -89,7 +91,6 @@ def load_shipped(model: torch.nn.Module | None = None) -> torch.nn.Module:
     ``model`` must have the shipped preset's architecture; otherwise the error names that preset.
     """
     from mvsformerpp.models.checkpoint import load_state_dict_strict, read_safetensors
-    from mvsformerpp.models.config import architecture
     from mvsformerpp.models.mvsformer import MVSFormerPP
 
     path = verify()

@@ -48,7 +48,7 @@ def _check_stored_preset(ckpt: Path, preset: str) -> None:
     if ckpt.suffix != ".safetensors":
         return
     from mvsformerpp.models.checkpoint import read_safetensors
-    from mvsformerpp.models.config import get_config, presets_for
+    from mvsformerpp.models.presets import get_config, presets_for
 
     _, stored = read_safetensors(ckpt)
     if stored is None:
@@ -109,7 +109,8 @@ def network_settings(config: ReconstructConfig) -> dict:
     not its weights (stage 1's local evidence and token-grid placements): part of each view's fingerprint,
     so that a resumed run redoes the views made with other settings, also when a new version of the
     package changes a preset's."""
-    from mvsformerpp.models.config import INFERENCE_SETTINGS, get_config
+    from mvsformerpp.models.config import INFERENCE_SETTINGS
+    from mvsformerpp.models.presets import get_config
 
     model = get_config(config.preset, **_model_overrides(config)).to_dict()
     return {k: model[k] for k in INFERENCE_SETTINGS}

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.models.config import ModelConfig
+from mvsformerpp.models.presets import PRESETS, RECONSTRUCT_PRESETS
 from mvsformerpp.pipelines.sfm import SfMConfig
 from mvsformerpp.utils.config_flags import flag_name
 
@@ -22,16 +24,11 @@ FUSION_CHOICES = ("normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt
 """The fusion presets of :mod:`mvsformerpp.fusion.config` (a test keeps them equal to its ``PRESETS``)."""
 
 
-DEFAULT_MIN_PARALLAX = {"lite": 0.15, "paper": 0.0}
-"""``--min-parallax`` per preset (:mod:`mvsformerpp.inference.search_range`): on for the shipped ``lite`` weights,
-whose measurements chose it; off for ``paper``, whose official weights were not measured with it."""
-
-
 @dataclass(frozen=True)
 class ReconstructConfig:
     """Everything that decides the result of ``reconstruct``; saved to ``OUT/config.json``."""
 
-    preset: Literal["lite", "paper"] = field(default="lite", metadata={"group": NETWORK})
+    preset: Literal[RECONSTRUCT_PRESETS] = field(default="lite", metadata={"group": NETWORK})
     """Network preset: ``lite`` is a small network for the CPU with trained weights shipped in the package,
     ``paper`` the official MVSFormer++ network (with ``--checkpoint model_best.pth``)."""
     checkpoint: str | None = field(default=None, metadata={"group": NETWORK, "metavar": "PATH"})
@@ -66,7 +63,7 @@ class ReconstructConfig:
     num_depth: int = field(default=192, metadata={"group": RUN, "metavar": "N"})
     """Depth planes of the input range, written to the output cams (the cascade uses only the ends of the
     range)."""
-    temperatures: tuple[float, ...] = field(default=(5.0, 5.0, 5.0, 1.0),
+    temperatures: tuple[float, ...] = field(default=ModelConfig.temperatures,
                                             metadata={"group": RUN, "metavar": "T", "nargs": 4})
     """Per-stage softmax temperatures of the depth readout (the paper's: 5 5 5 1)."""
     cvt_shifts: int | None = field(default=None, metadata={"group": NETWORK, "metavar": "K"})
@@ -141,7 +138,7 @@ class ReconstructConfig:
         """``min_parallax`` with the preset's default resolved."""
         if self.min_parallax is not None:
             return float(self.min_parallax)
-        return DEFAULT_MIN_PARALLAX.get(self.preset, 0.0)
+        return PRESETS[self.preset].min_parallax
 
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed; the

@@ -18,6 +18,7 @@ import torch
 from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
 from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.io.scene import Scene
+from mvsformerpp.models.presets import PRESETS
 from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings, weights_id, weights_name
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.utils.precision import attention_in_bf16, precision_name
@@ -100,7 +101,8 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
     weights = None
     if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
-    attention_bf16 = not given_model and attention_in_bf16(device, config.precision, config.preset)
+    attention_bf16 = not given_model and attention_in_bf16(device, config.precision,
+                                                           PRESETS[config.preset].attention_bf16)
     settings = {**config.result_settings(), **resolved, "precision": precision_name(config.precision, attention_bf16)}
     if not given_model:  # the preset's network as built for this run (a given network is the caller's)
         settings["network"] = network_settings(config)
@@ -148,7 +150,7 @@ def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.devic
 
     from mvsformerpp.inference.runner import view_cameras
     from mvsformerpp.inference.search_range import search_range, stage1_shift
-    from mvsformerpp.models.config import get_config
+    from mvsformerpp.models.presets import get_config
 
     usable = [i for i, v in enumerate(scene.views) if v.neighbors and v.depth_min is not None
               and v.depth_max is not None and 0 < v.depth_min < v.depth_max]

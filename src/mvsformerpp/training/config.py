@@ -18,6 +18,7 @@ from typing import Literal
 import yaml
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.models.presets import PRESET_NAMES
 
 
 @dataclass(frozen=True)
@@ -42,8 +43,8 @@ class TrainConfig:
     val_list: str | None = None
     """File listing the validation scans/scenes (None: the recipe's list)."""
     # ---- network
-    preset: Literal["lite", "paper", "paper_finetune"] = "lite"
-    """Network preset (``mvsformerpp.models.config.PRESETS``)."""
+    preset: Literal[PRESET_NAMES] = "lite"
+    """Network preset (:data:`mvsformerpp.models.presets.PRESETS`)."""
     init_checkpoint: str | None = None
     """Weights to start from (a safetensors checkpoint, an official .pth, or DINOv2 backbone weights)."""
     xavier_init: bool = True

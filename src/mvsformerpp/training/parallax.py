@@ -44,7 +44,7 @@ def plane_steps(num_hypotheses, ratios) -> np.ndarray:
 
 
 def _default_steps() -> np.ndarray:
-    from mvsformerpp.models.config import get_config
+    from mvsformerpp.models.presets import get_config
 
     cfg = get_config("lite")
     return plane_steps(cfg.num_hypotheses, cfg.hypothesis_ratio)
@@ -119,7 +119,7 @@ def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray, np
     training feeds them: evenly spaced samples of the training set, each at the next of the recipe's
     resolutions."""
     from mvsformerpp.data.base import SampleKey
-    from mvsformerpp.models.config import get_config
+    from mvsformerpp.models.presets import get_config
     from mvsformerpp.training.datasets import build_datasets
 
     cfg = get_config(config.preset)

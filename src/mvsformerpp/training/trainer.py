@@ -27,9 +27,9 @@ from mvsformerpp.data.base import MVSDataset, SampleKey
 from mvsformerpp.data.samplers import MultiScaleBatchSampler
 from mvsformerpp.errors import InputError, MVSFormerError
 from mvsformerpp.evaluation.depth import DepthSums, depth_sums
-from mvsformerpp.models.config import get_config
 from mvsformerpp.models.loss import cascade_loss
 from mvsformerpp.models.mvsformer import MVSFormerPP
+from mvsformerpp.models.presets import get_config
 from mvsformerpp.training import distributed as D
 from mvsformerpp.training.checkpoints import (
     load_training_checkpoint,

@@ -55,21 +55,21 @@ def cpu_attention_in_bf16() -> bool:
     return "amx_bf16" in cpu_bf16_flags()
 
 
-def attention_in_bf16(device: str | torch.device, precision: str, preset: str | None) -> bool:
-    """Whether a run of network ``preset`` at ``precision`` on ``device`` takes the stage-1 cost-volume
-    transformer's softmax attention in bf16 inside an otherwise fp32 network: ``auto`` with the ``lite``
-    network on a CPU with AMX, where PyTorch's attention runs about 1.4x faster in bf16 and the depth maps
-    were measured to move by at most about 0.1 % of the depth range (README, Benchmarks); plain fp32 on
-    other devices and CPUs, and for the ``paper`` network, whose error in bf16 has no trained weights to
-    be measured with."""
-    return (check_precision(precision) == "auto" and preset == "lite" and torch.device(device).type == "cpu"
+def attention_in_bf16(device: str | torch.device, precision: str, eligible: bool) -> bool:
+    """Whether a run at ``precision`` on ``device`` takes the stage-1 cost-volume transformer's softmax
+    attention in bf16 inside an otherwise fp32 network: ``auto`` with a network whose preset is ``eligible``
+    (:attr:`~mvsformerpp.models.presets.NetworkPreset.attention_bf16`: the ``lite`` network) on a CPU with
+    AMX, where PyTorch's attention runs about 1.4x faster in bf16 and the depth maps were measured to move
+    by at most about 0.1 % of the depth range (README, Benchmarks); plain fp32 on other devices and CPUs,
+    and for the ``paper`` network, whose error in bf16 has no trained weights to be measured with."""
+    return (check_precision(precision) == "auto" and eligible and torch.device(device).type == "cpu"
             and cpu_attention_in_bf16())
 
 
-def describe_precision(device: str | torch.device, precision: str, preset: str | None) -> str:
-    """``precision`` as it runs for network ``preset`` (None: a network of the caller's): ``auto`` names
-    what it resolves to."""
-    return precision_name(precision, attention_in_bf16(device, precision, preset))
+def describe_precision(device: str | torch.device, precision: str, eligible: bool) -> str:
+    """``precision`` as it runs for a network whose preset is ``eligible`` for bf16 attention (False for a
+    network of the caller's): ``auto`` names what it resolves to."""
+    return precision_name(precision, attention_in_bf16(device, precision, eligible))
 
 
 def precision_name(precision: str, attention_bf16: bool) -> str:
