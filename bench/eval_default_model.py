@@ -37,7 +37,7 @@ def main() -> None:
         synthetic_quality,
         temple_quality,
     )
-    from mvsformerpp.pipelines.network import describe_weights
+    from mvsformerpp.pipelines.network import run_weights
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
     from mvsformerpp.utils.allocator import tune_allocator
     from mvsformerpp.utils.atomic import atomic_write_text
@@ -52,10 +52,10 @@ def main() -> None:
     args = p.parse_args()
     tune_allocator()
     config = ReconstructConfig(preset="lite", checkpoint=args.checkpoint, num_views=5, fusion="normal")
-    print(describe_weights(config))
+    print(run_weights(config).description)
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out or tmp)
-        results: dict = {"weights": describe_weights(config)}
+        results: dict = {"weights": run_weights(config).description}
         t = time.perf_counter()
         demo = None if args.checkpoint is None else dataclasses.replace(DEMO_CONFIG, checkpoint=args.checkpoint)
         if args.calibrate:

@@ -105,11 +105,10 @@ def main() -> None:
                       f"{100 * r['within_1pct']:9.1f}% "
                       f"{100 * r['mean_abs_rel']:9.2f}% {slope:>6s}", flush=True)
     if args.json:
-        from mvsformerpp.pipelines.network import describe_weights
-        from mvsformerpp.pipelines.reconstruct import ReconstructConfig
+        from mvsformerpp.models.weights import weights_for
         from mvsformerpp.utils.atomic import atomic_write_text
 
-        weights = describe_weights(ReconstructConfig(preset="lite", checkpoint=args.checkpoint))
+        weights = weights_for("lite", args.checkpoint).description
         atomic_write_text(args.json, json.dumps({"weights": weights, "rows": rows}, indent=1))
 
 

@@ -107,7 +107,7 @@ def test_checkpoint_for_another_preset_names_the_preset_it_fits(tmp_path):
 
 
 def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
-    from mvsformerpp.pipelines.network import build_network, describe_weights
+    from mvsformerpp.pipelines.network import build_network, run_weights
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 
     config = ReconstructConfig()
@@ -116,9 +116,9 @@ def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
     reference = shipped.load_shipped()
     for (k, a), b in zip(model.state_dict().items(), reference.state_dict().values()):
         assert torch.equal(a, b), k
-    assert "shipped with mvsformerpp" in describe_weights(config)
+    assert "shipped with mvsformerpp" in run_weights(config).description
     paper = dataclasses.replace(config, preset="paper")
-    assert "randomly initialised" in describe_weights(paper)
+    assert "randomly initialised" in run_weights(paper).description
     assert presets_for(get_config("paper")) == ["paper", "paper_finetune"]
 
 

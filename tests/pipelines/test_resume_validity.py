@@ -5,10 +5,11 @@ from pathlib import Path
 
 import pytest
 
-from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
+from mvsformerpp.inference.fingerprint import view_fingerprints
 from mvsformerpp.io.detect import load_scene
 from mvsformerpp.io.mvsnet import read_cam, write_cam
 from mvsformerpp.io.pair import read_pair, write_pair
+from mvsformerpp.models.weights import weights_for
 from mvsformerpp.pipelines.reconstruct import reconstruct
 
 sys.path.insert(0, str(Path(__file__).parent))
@@ -71,6 +72,10 @@ def test_weights_file_identity_changes_every_key(tmp_path):
     s = load_scene(scene(tmp_path / "s"))
     w = tmp_path / "w.pth"
     w.write_bytes(b"1")
+
+    def weights_identity(path):
+        return weights_for("lite", str(path)).identity
+
     a = view_fingerprints(s, 3, {"x": 1}, weights_identity(w))
     w.write_bytes(b"22")
     b = view_fingerprints(s, 3, {"x": 1}, weights_identity(w))

@@ -108,20 +108,22 @@ def test_reconstruct_writes_the_report_and_prints_the_summary(tmp_path, capsys, 
 
 def test_the_report_names_the_weights_that_ran(synth_run, tmp_path, fake_network):
     from mvsformerpp.models.shipped import shipped_record
-    from mvsformerpp.pipelines.network import weights_name
-    from mvsformerpp.pipelines.reconstruct import ReconstructConfig
+    from mvsformerpp.models.weights import weights_for
+
+    def weights_name(preset, checkpoint=None):
+        return weights_for(preset, checkpoint).name
 
     record = shipped_record()
-    assert weights_name(ReconstructConfig(preset="lite")).startswith(f"the shipped default weights {record['file']}")
-    assert record["sha256"][:12] in weights_name(ReconstructConfig(preset="lite"))
-    assert weights_name(ReconstructConfig(preset="lite", checkpoint="w.safetensors")) == "w.safetensors"
-    assert weights_name(ReconstructConfig(preset="paper")).startswith("random initialisation")
+    assert weights_name("lite").startswith(f"the shipped default weights {record['file']}")
+    assert record["sha256"][:12] in weights_name("lite")
+    assert weights_name("lite", "w.safetensors") == "w.safetensors"
+    assert weights_name("paper").startswith("random initialisation")
 
     out = tmp_path / "out"
     shutil.copytree(synth_run, out)
     config = json.loads((out / "config.json").read_text())
     config["config"].update(preset="lite", checkpoint=None)
-    config["resolved"]["weights"] = weights_name(ReconstructConfig(preset="lite"))
+    config["resolved"]["weights"] = weights_name("lite")
     (out / "config.json").write_text(json.dumps(config))
     text = write_report(out).read_text()
     assert f"shipped default weights {record['file']}" in text and "random weights" not in text

@@ -5,19 +5,17 @@ from __future__ import annotations
 import argparse
 import dataclasses
 
-from mvsformerpp.cli.reconstruct import add_model_args, print_fusion, print_summary, print_weights
+from mvsformerpp.cli.reconstruct import add_model_args, print_intro, print_summary
 
 
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
-    from mvsformerpp.pipelines.network import describe_weights
 
     config = dataclasses.replace(DEMO_CONFIG, preset=args.preset, checkpoint=args.checkpoint, device=args.device,
                                  precision=args.precision, max_size=args.max_size, max_images=args.max_images)
     if not args.quiet:
         print(f"Reconstructing the Middlebury temple ({temple_dir()}; see README.txt there for its credits)")
-    print_weights(describe_weights(config), args.quiet)
-    print_fusion(config, args.quiet)
+    print_intro(config, args.quiet)
     summary = run_demo(args.output, config, quiet=args.quiet)
     if not args.quiet:
         print_summary(summary, args.output)

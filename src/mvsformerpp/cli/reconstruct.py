@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import logging
+import sys
 
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.utils.config_flags import add_config_flags
@@ -44,34 +45,28 @@ def print_summary(summary: dict, out) -> None:
     print(f"report      : {summary['outputs']['report']}")
 
 
-def print_weights(description: str, quiet: bool) -> None:
-    """Say which weights run (stdout); with --quiet only a warning about random weights (stderr)."""
-    import sys
+def print_intro(config: ReconstructConfig, quiet: bool) -> None:
+    """Say which weights run and how the depth maps will be fused (stdout); with --quiet only a warning
+    about random weights (stderr)."""
+    from mvsformerpp.pipelines.network import describe_fusion, run_weights
 
+    weights = run_weights(config)
     if not quiet:
-        print(description)
-    elif "randomly initialised" in description:
-        print(f"warning: {description}", file=sys.stderr)
-
-
-def print_fusion(config, quiet: bool) -> None:
-    """Say how the depth maps will be fused (stdout; nothing with --quiet)."""
-    from mvsformerpp.pipelines.network import describe_fusion
-
-    line = describe_fusion(config)
-    if line and not quiet:
-        print(line)
+        print(weights.description)
+        line = describe_fusion(config, weights)
+        if line:
+            print(line)
+    elif weights.is_random:
+        print(f"warning: {weights.description}", file=sys.stderr)
 
 
 def run(args: argparse.Namespace) -> int:
-    from mvsformerpp.pipelines.network import describe_weights
     from mvsformerpp.pipelines.reconstruct import reconstruct
 
     if args.quiet:
         logging.getLogger("mvsformerpp").setLevel(logging.WARNING)
     config = config_from_args(args)
-    print_weights(describe_weights(config), args.quiet)
-    print_fusion(config, args.quiet)
+    print_intro(config, args.quiet)
     summary = reconstruct(args.input, args.output, config, quiet=args.quiet)
     if not args.quiet:
         print_summary(summary, args.output)

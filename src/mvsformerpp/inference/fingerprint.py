@@ -12,26 +12,12 @@ from __future__ import annotations
 
 import hashlib
 import json
-from pathlib import Path
 
 import numpy as np
 
 from mvsformerpp.inference.runner import select_sources
 from mvsformerpp.io.scene import Scene, View
-
-
-def file_identity(path: str | Path) -> str:
-    """Size and modification time of a file (what ``make`` trusts): cheap, and changes with any edit."""
-    st = Path(path).stat()
-    return f"{st.st_size}:{st.st_mtime_ns}"
-
-
-def weights_identity(checkpoint: str | Path | None) -> str | None:
-    """The resolved path and identity of a weights file (None: no file, the preset's initialisation)."""
-    if checkpoint is None:
-        return None
-    path = Path(checkpoint).resolve()
-    return f"{path}:{file_identity(path)}"
+from mvsformerpp.utils.files import file_identity
 
 
 def _camera(view: View) -> list:

@@ -68,8 +68,6 @@ def read_torch_file(path: str | Path) -> object:
     dotted attribute path) is refused with :class:`InputError` before anything of it runs.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError("checkpoint file not found", path)
     records = [(PickledRecord, name) for name in RECORDED_GLOBALS]
     try:
         with torch.serialization.safe_globals(records):
@@ -151,14 +149,27 @@ def load_checkpoint(model: torch.nn.Module, path: str | Path) -> torch.nn.Module
     ``dinov2_vitb14_pretrain.pth`` (loaded into the backbone only), or a ``.safetensors`` file written
     by :func:`save_checkpoint`.
     """
+    sd, _ = read_checkpoint(path)
+    return load_weights(model, sd, path)
+
+
+def read_checkpoint(path: str | Path) -> tuple[dict[str, torch.Tensor], ModelConfig | None]:
+    """The tensors of any checkpoint :func:`load_checkpoint` takes, under our key names, and the network
+    config a safetensors file stores (None for other files)."""
     path = Path(path)
+    if not path.is_file():
+        raise InputError("checkpoint file not found", path)
     if path.suffix == ".safetensors":
-        sd, _ = read_safetensors(path)
-    else:
-        try:
-            sd = convert_state_dict(read_torch_file(path))
-        except ValueError as e:
-            raise InputError(str(e), path) from e
+        return read_safetensors(path)
+    try:
+        return convert_state_dict(read_torch_file(path)), None
+    except ValueError as e:
+        raise InputError(str(e), path) from e
+
+
+def load_weights(model: torch.nn.Module, sd: dict[str, torch.Tensor], path: str | Path) -> torch.nn.Module:
+    """Load the tensors :func:`read_checkpoint` read from ``path`` into ``model`` strictly (a backbone-only
+    file into the backbone); returns ``model``."""
     backbone_only = all(k.startswith("vit.") for k in sd)
     load_state_dict_strict(model, sd, path, prefix="vit." if backbone_only else "")
     return model

@@ -55,11 +55,6 @@ def describe_shipped() -> str:
             f"not the paper's model) from {shipped_weights_path()}")
 
 
-def runs_shipped(preset: str | None, checkpoint: str | None) -> bool:
-    """Whether a network of ``preset`` given ``checkpoint`` (None: none) runs the shipped weights."""
-    return checkpoint is None and preset == SHIPPED_PRESET
-
-
 def calibrated_conf(method: str) -> float | None:
     """The fusion confidence threshold calibrated for the shipped weights and fusion ``method`` (normal,
     dynamic, gipuma), or None when the record has none. Their confidences are lower than the paper

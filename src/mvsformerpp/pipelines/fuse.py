@@ -300,12 +300,12 @@ def _fuse_streaming(folder: Path, out_ply: Path, config: FusionConfig, device: s
 def recorded_calibrated_conf(root: str | Path, method: str) -> float | None:
     """The fusion threshold calibrated for the shipped weights when the run of ``root`` used them, else None."""
     from mvsformerpp.io.output_folder import read_run_record
-    from mvsformerpp.models import shipped
+    from mvsformerpp.models.weights import weights_for
 
     record = read_run_record(root)
-    if record is None or not shipped.runs_shipped(record["config"].get("preset"), record["config"].get("checkpoint")):
+    if record is None:
         return None
-    return shipped.calibrated_conf(method)
+    return weights_for(record["config"].get("preset"), record["config"].get("checkpoint")).calibrated_conf(method)
 
 
 def fuse_reconstruction(folder, plan, quiet: bool) -> tuple[int | None, bool]:

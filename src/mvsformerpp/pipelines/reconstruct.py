@@ -25,8 +25,9 @@ import torch
 from mvsformerpp.errors import InputError
 from mvsformerpp.io.output_folder import DEPTH_VIS, SUMMARY, OutputFolder, disk_full_guard, scene_fingerprint
 from mvsformerpp.io.scene import Scene
+from mvsformerpp.models.weights import GIVEN, Weights
 from mvsformerpp.pipelines.depth_maps import DepthMapsDone, compute_depth_maps, write_layout
-from mvsformerpp.pipelines.network import describe_weights
+from mvsformerpp.pipelines.network import run_weights
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig, config_flag
 from mvsformerpp.pipelines.run_plan import RunPlan, cap_views, plan_line, plan_run, working_long_side
 from mvsformerpp.pipelines.scene_input import load_input, prepare_scene, warn_if_range_misses_scene
@@ -51,18 +52,19 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     config = config or ReconstructConfig()
     if not Path(input_path).exists():
         raise InputError("no such file or folder", input_path)
-    if config.checkpoint is not None and model is None and not Path(config.checkpoint).is_file():
-        raise InputError("checkpoint file not found", config.checkpoint)
+    weights = GIVEN if model is not None else run_weights(config)
+    if weights.source == "file" and not Path(weights.checkpoint).is_file():
+        raise InputError("checkpoint file not found", weights.checkpoint)
     _device(config.device)
     ranks = ranks_from_env(config.device)
     try:
         with claim_output_folder(out_dir, [input_path], "reconstruct"):
-            return _run(input_path, out_dir, config, quiet or not ranks.is_main, model, ranks)
+            return _run(input_path, out_dir, config, quiet or not ranks.is_main, model, weights, ranks)
     finally:
         ranks.close()
 
 
-def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ranks) -> dict:
+def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, weights: Weights, ranks) -> dict:
     """The stages in order; under torchrun every rank runs this, :class:`~mvsformerpp.inference.ranks.Ranks`
     says which rank does what and exchanges the outcomes."""
     t0, started = time.perf_counter(), time.time()
@@ -87,7 +89,7 @@ def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ran
 
     # 2. the plan; rank 0's working resolution for all (free memory differs between machines, it may not)
     long_side = ranks.broadcast(working_long_side(scene, config, device))
-    plan = plan_run(input_path, full, scene, fingerprint, config, device, long_side, given_model=model is not None)
+    plan = plan_run(input_path, full, scene, fingerprint, config, device, long_side, weights)
 
     # 3.-4. the network and the depth maps
     todo = ranks.broadcast(ranks.step(partial(write_layout, folder, plan), only_main=True))
@@ -100,7 +102,7 @@ def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ran
 
     # 5.-6. fusion, summary and report (rank 0)
     return ranks.broadcast(ranks.step(partial(finish, folder, plan, done, per_rank, timings, t0, quiet,
-                                              ranks.distributed, model is not None), only_main=True))
+                                              ranks.distributed), only_main=True))
 
 
 def open_output_folder(out_dir, ranks) -> OutputFolder:
@@ -132,7 +134,7 @@ def check_masks(config: ReconstructConfig, scene: Scene) -> None:
 
 
 def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: list[dict], timings: dict,
-           t0: float, quiet: bool, distributed: bool, given_model: bool) -> dict:
+           t0: float, quiet: bool, distributed: bool) -> dict:
     """Rank 0 after the depth maps: fusion (unless ``--fusion none`` or already done with these maps and
     settings), then ``summary.json`` and ``report.html``; returns the summary."""
     from mvsformerpp.pipelines.fuse import fuse_reconstruction
@@ -153,7 +155,7 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
         "fusion_conf": plan.fusion_conf,
         "preset": config.preset,
         "checkpoint": config.checkpoint,
-        "weights": "a network given by the caller" if given_model else describe_weights(config),
+        "weights": plan.weights.description,
         "timings": {k: round(v, 3) if isinstance(v, float) else v for k, v in timings.items()},
         "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
         "schedule": None if done.schedule is None else {k: v for k, v in done.schedule.items() if k != "order"},

@@ -15,11 +15,12 @@ from pathlib import Path
 
 import torch
 
-from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
+from mvsformerpp.inference.fingerprint import view_fingerprints
 from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models.presets import PRESETS
-from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings, weights_id, weights_name
+from mvsformerpp.models.weights import Weights
+from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.utils.precision import attention_in_bf16, precision_name
 
@@ -50,8 +51,8 @@ class RunPlan:
     """Working resolution of each view."""
     keys: list[str]
     """Per view: the hash of what its depth map depends on."""
-    weights: str
-    """The weights in a few words (config.json, the report)."""
+    weights: Weights
+    """The weights the network runs."""
     fusion_conf: float | None
     """Fusion's confidence threshold (None: the fusion preset's own)."""
     attention_bf16: bool = False
@@ -93,25 +94,21 @@ def cap_views(config: ReconstructConfig, num_images: int, say: bool) -> Reconstr
 
 
 def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str, config: ReconstructConfig,
-             device: torch.device, long_side: int, given_model: bool) -> RunPlan:
+             device: torch.device, long_side: int, weights: Weights) -> RunPlan:
     """The plan for ``scene`` (prepared from the input ``full``) at the working resolution ``long_side``
-    (:func:`working_long_side`); ``given_model``: the caller passed its own network (no weights file)."""
+    (:func:`working_long_side`) with ``weights`` (:data:`~mvsformerpp.models.weights.GIVEN`: the caller's
+    network)."""
     plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
     resolved = resolved_size(long_side, plans)
-    weights = None
-    if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
-        weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
-    attention_bf16 = not given_model and attention_in_bf16(device, config.precision,
-                                                           PRESETS[config.preset].attention_bf16)
+    given = weights.source == "given"
+    attention_bf16 = not given and attention_in_bf16(device, config.precision, PRESETS[config.preset].attention_bf16)
     settings = {**config.result_settings(), **resolved, "precision": precision_name(config.precision, attention_bf16)}
-    if not given_model:  # the preset's network as built for this run (a given network is the caller's)
+    if not given:  # the preset's network as built for this run (a given network is the caller's)
         settings["network"] = network_settings(config)
-    keys = view_fingerprints(scene, config.num_views, settings, weights)
+    keys = view_fingerprints(scene, config.num_views, settings, weights.identity)
     return RunPlan(config=config, input_path=Path(input_path), scene=scene, source_format=full.source_format,
                    input_views=len(full), fingerprint=fingerprint, device=device, long_side=long_side, plans=plans,
-                   keys=keys,
-                   weights="a network passed to reconstruct()" if given_model else weights_name(config),
-                   fusion_conf=config.fusion_conf if given_model else fusion_conf_for(config),
+                   keys=keys, weights=weights, fusion_conf=fusion_conf_for(config, weights),
                    attention_bf16=attention_bf16)
 
 

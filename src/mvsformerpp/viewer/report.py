@@ -150,11 +150,12 @@ def view_statistics(view: ViewFiles, conf_threshold: float | None) -> dict[str, 
 
 def _weights_of_old_run(cfg: dict) -> str:
     """The weights of a run folder written before config.json named them."""
-    from mvsformerpp.models.shipped import runs_shipped
+    from mvsformerpp.models.weights import weights_for
 
     if cfg.get("checkpoint"):
         return str(cfg["checkpoint"])
-    return "the shipped default weights" if runs_shipped(cfg.get("preset"), None) else "random initialisation"
+    shipped = weights_for(cfg.get("preset"), None).source == "shipped"
+    return "the shipped default weights" if shipped else "random initialisation"
 
 
 def collect(run: RunFolder) -> dict[str, Any]:
