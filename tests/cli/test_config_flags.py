@@ -71,10 +71,11 @@ def test_messages_name_the_flag_the_parser_has():
 
 
 def test_fuse_shares_the_flags_of_reconstruct_and_preset_means_the_network():
-    """--fusion, --conf, --mask-dir, --device, --memory-gb are the same settings in fuse and reconstruct;
-    --preset is the network preset wherever it exists, so fuse has none."""
+    """--fusion, --conf, --disp, --num-consistent, --num-src-views, --mask-dir, --device, --memory-gb are the
+    same settings in fuse and reconstruct; --preset is the network preset wherever it exists, so fuse has none."""
     fuse, recon = subparser("fuse"), subparser("reconstruct")
-    for flag in ("--fusion", "--conf", "--mask-dir", "--device", "--memory-gb"):
+    for flag in ("--fusion", "--conf", "--disp", "--num-consistent", "--num-src-views", "--mask-dir", "--device",
+                 "--memory-gb"):
         a, b = fuse._option_string_actions[flag], recon._option_string_actions[flag]
         assert (a.dest, a.help, a.choices, a.default) == (b.dest, b.help, b.choices, b.default)
     assert "--preset" not in fuse._option_string_actions

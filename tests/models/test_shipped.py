@@ -125,9 +125,21 @@ def test_reconstruct_uses_the_shipped_weights_without_a_checkpoint():
 def test_fusion_threshold_calibrated_for_the_shipped_weights(monkeypatch, tmp_path):
     import json
 
-    from mvsformerpp.pipelines.fuse import recorded_calibrated_conf as shipped_weights_conf
-    from mvsformerpp.pipelines.network import describe_fusion, fusion_conf_for
+    from mvsformerpp.pipelines.fuse import recorded_weights
+    from mvsformerpp.pipelines.network import run_weights
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
+
+    def fusion_conf_for(config):
+        choice = config.fusion_choice(run_weights(config).calibrated_conf)
+        return config.fusion_conf if choice is None else choice.conf
+
+    def describe_fusion(config):
+        choice = config.fusion_choice(run_weights(config).calibrated_conf)
+        return None if choice is None else choice.line
+
+    def shipped_weights_conf(root, method):
+        weights = recorded_weights(root)
+        return None if weights is None else weights.calibrated_conf(method)
 
     record = {**shipped.shipped_record(), "fusion_conf": {"normal": 0.2, "dynamic": 0.15}}
     monkeypatch.setattr(shipped, "shipped_record", lambda: record)

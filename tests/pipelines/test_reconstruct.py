@@ -313,7 +313,7 @@ def test_paper_settings_reach_the_run(scene4, tmp_path):
     import argparse
 
     from mvsformerpp.cli.reconstruct import add_model_args, add_run_args, config_from_args
-    from mvsformerpp.pipelines.network import fusion_preset as _fusion_config
+    from mvsformerpp.fusion import get_config as _fusion_config
     from mvsformerpp.pipelines.scene_input import load_input, prepare_scene
 
     p = argparse.ArgumentParser()

@@ -48,14 +48,14 @@ def print_summary(summary: dict, out) -> None:
 def print_intro(config: ReconstructConfig, quiet: bool) -> None:
     """Say which weights run and how the depth maps will be fused (stdout); with --quiet only a warning
     about random weights (stderr)."""
-    from mvsformerpp.pipelines.network import describe_fusion, run_weights
+    from mvsformerpp.pipelines.network import run_weights
 
     weights = run_weights(config)
     if not quiet:
         print(weights.description)
-        line = describe_fusion(config, weights)
-        if line:
-            print(line)
+        fusion = config.fusion_choice(weights.calibrated_conf)
+        if fusion is not None:
+            print(fusion.line)
     elif weights.is_random:
         print(f"warning: {weights.description}", file=sys.stderr)
 

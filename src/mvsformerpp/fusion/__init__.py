@@ -1,4 +1,5 @@
-"""Depth-map fusion into a coloured point cloud: ``normal``, ``dynamic`` (DPCD) and ``gipuma`` filters.
+"""Depth-map fusion into a coloured point cloud: ``normal``, ``dynamic`` (DPCD) and ``gipuma`` filters
+(:data:`~mvsformerpp.fusion.config.METHODS`).
 
 The configuration is imported eagerly (the command line builds its flags from it); the fusion code, which
 needs torch, on first use of its names.
@@ -8,10 +9,11 @@ from __future__ import annotations
 
 import importlib
 
-from mvsformerpp.fusion.config import PRESETS, FusionConfig, get_config
+from mvsformerpp.fusion.choice import FusionChoice, choose_fusion
+from mvsformerpp.fusion.config import METHODS, PRESETS, FusionConfig, FusionMethod, get_config
 
-__all__ = ["FusionConfig", "FusionView", "PRESETS", "fuse_depth_maps", "fuse_views", "get_config",
-           "iter_fused_points", "make_view", "make_views"]
+__all__ = ["METHODS", "FusionChoice", "FusionConfig", "FusionMethod", "FusionView", "PRESETS", "choose_fusion",
+           "fuse_depth_maps", "fuse_views", "get_config", "iter_fused_points", "make_view", "make_views"]
 
 _LAZY = {"FusionView": "core", "fuse_views": "core", "iter_fused_points": "core", "make_view": "views",
          "make_views": "views", "fuse_depth_maps": "views"}

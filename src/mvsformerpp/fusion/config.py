@@ -1,20 +1,26 @@
-"""Fusion settings: a frozen dataclass and named presets (the reference's DTU and Tanks-and-Temples ones)."""
+"""Fusion settings, the fusion methods and the named presets: the one place that names them.
+
+A method is a module holding its ``Kernel`` (a :class:`~mvsformerpp.fusion.core.FusionKernel`: the rule
+that keeps or drops a reference pixel and makes its point) and a record in :data:`METHODS`, which is also
+the preset of its name. Adding a method is its module plus one record; every list of methods and presets
+(the ``--fusion`` choices, the calibration's sweep, the empty-cloud advice) is read from here.
+"""
 
 from __future__ import annotations
 
 import dataclasses
+import importlib
 from dataclasses import dataclass, field
-from typing import Literal
 
+from mvsformerpp.errors import InputError
 from mvsformerpp.utils.config_flags import flag_name
-
-Method = Literal["normal", "dynamic", "gipuma"]
 
 
 @dataclass(frozen=True)
 class FusionConfig:
-    method: Method = field(default="normal", metadata={"flag": None})
-    """normal: fixed reprojection thresholds; dynamic: DPCD level-wise thresholds; gipuma: fusibile's rule."""
+    method: str = field(default="normal", metadata={"flag": None})
+    """A method of :data:`METHODS`: normal: fixed reprojection thresholds; dynamic: DPCD level-wise
+    thresholds; gipuma: fusibile's rule."""
     conf_threshold: float = field(default=0.5, metadata={"flag": "--conf", "metavar": "C"})
     """Keep reference pixels whose confidence is above this (all methods); normal and gipuma also drop
     source depths at or below it."""
@@ -46,8 +52,6 @@ class FusionConfig:
         ]
         for name, ok, what in checks:
             if not ok:  # NaN fails every comparison, so it lands here too
-                from mvsformerpp.errors import InputError
-
                 flag = flag_name(FusionConfig, name)
                 raise InputError(f"{flag.split(' (')[0]} must be {what}, got {getattr(self, name)}")
 
@@ -55,15 +59,49 @@ class FusionConfig:
         return dataclasses.asdict(self)
 
 
+@dataclass(frozen=True)
+class FusionMethod:
+    """A fusion method: its name, the module of its kernel and its default settings."""
+
+    name: str
+    module: str
+    """The module whose ``Kernel`` runs the method. It is imported when fusion runs, not with this table:
+    the command line reads the fusion settings without loading torch (tests/cli/test_startup.py)."""
+    defaults: FusionConfig
+    """The preset named after the method; its type is the settings type the kernel reads (FusionConfig, or
+    a subclass adding the method's own fields)."""
+    lenient: bool = False
+    """When a run's fusion keeps no point, the advice also tries this method (its thresholds adapt to how
+    many views agree)."""
+
+    def kernel(self) -> type:
+        """The method's :class:`~mvsformerpp.fusion.core.FusionKernel` class."""
+        return importlib.import_module(self.module).Kernel
+
+
+METHODS: dict[str, FusionMethod] = {m.name: m for m in (
+    FusionMethod("normal", "mvsformerpp.fusion.normal", FusionConfig()),
+    FusionMethod("dynamic", "mvsformerpp.fusion.dynamic", FusionConfig(method="dynamic", conf_threshold=0.3),
+                 lenient=True),
+    FusionMethod("gipuma", "mvsformerpp.fusion.gipuma",
+                 FusionConfig(method="gipuma", disp_threshold=0.25, num_consistent=3, conf_threshold=0.5)),
+)}
+
 PRESETS: dict[str, FusionConfig] = {
-    "normal": FusionConfig(),
-    "dynamic": FusionConfig(method="dynamic", conf_threshold=0.3),
-    "gipuma": FusionConfig(method="gipuma", disp_threshold=0.25, num_consistent=3, conf_threshold=0.5),
+    **{name: method.defaults for name, method in METHODS.items()},
     # The reference's settings (its scripts/test.sh and test_tt_*.sh).
     "dtu": FusionConfig(method="gipuma", conf_threshold=0.5, disp_threshold=0.1, num_consistent=2),
     "tnt_intermediate": FusionConfig(method="dynamic", conf_threshold=0.6, num_src_views=10),
     "tnt_advanced": FusionConfig(method="dynamic", conf_threshold=0.3, num_src_views=15),
 }
+"""Named settings: each method's defaults, and the reference's benchmark settings."""
+
+
+def get_method(name: str) -> FusionMethod:
+    """The record of method ``name``; InputError naming the methods when there is none."""
+    if name not in METHODS:
+        raise InputError(f"unknown fusion method {name!r}; choose one of {', '.join(METHODS)}")
+    return METHODS[name]
 
 
 def get_config(name: str = "normal", **overrides) -> FusionConfig:

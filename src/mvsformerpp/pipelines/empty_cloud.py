@@ -10,6 +10,7 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.fusion import FusionConfig
+from mvsformerpp.fusion.config import METHODS
 
 # Confidence values sampled per view for the percentiles (a regular subsample bounds the memory).
 SAMPLES_PER_VIEW = 1 << 18
@@ -68,7 +69,8 @@ def explain_empty_cloud(depth_folder, config: FusionConfig, folder: Path, out_pl
     # one consistent view, then try it.
     conf = config.conf_threshold if pct is None else max(0.0, float(np.floor((pct[50] - 1e-4) * 100) / 100))
     first = dataclasses.replace(config, conf_threshold=min(conf, config.conf_threshold), num_consistent=1)
-    candidates = [first] + ([dataclasses.replace(first, method="dynamic")] if config.method != "dynamic" else [])
+    candidates = [first] + [dataclasses.replace(first, method=m.name) for m in METHODS.values()
+                            if m.lenient and m.name != config.method]
     for cand in candidates:
         kept = count_points(cand)
         if kept:

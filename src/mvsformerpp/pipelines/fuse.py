@@ -24,14 +24,17 @@ from tqdm import tqdm
 
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.fusion import FusionConfig, iter_fused_points
+from mvsformerpp.fusion.choice import Calibration, choose_fusion
 from mvsformerpp.fusion.normals import ReferenceAttributes
 from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
 from mvsformerpp.io.images import read_image
 from mvsformerpp.io.mvsnet import load_mvsnet_scene
-from mvsformerpp.io.output_folder import CLOUD
+from mvsformerpp.io.output_folder import CLOUD, read_run_record
 from mvsformerpp.io.pfm import pfm_shape, read_pfm
 from mvsformerpp.io.ply import PlyStreamWriter
 from mvsformerpp.io.scene import Scene
+from mvsformerpp.models.weights import Weights, weights_for
+from mvsformerpp.pipelines.reconstruct_config import fusion_overrides
 
 log = logging.getLogger(__name__)
 
@@ -52,6 +55,20 @@ def _read_confidence(path: Path, shape) -> np.ndarray:
     return conf
 
 
+MIN_READ_SIZE = 16
+"""Smallest longer side, in pixels, that fusion reads depth maps at."""
+
+
+def fusion_read_size(max_size: int | None) -> int | None:
+    """The longer side fusion reads depth maps at, at most (``fuse --max-size``): None or 0 is the size they
+    are stored at; else it must be at least :data:`MIN_READ_SIZE`."""
+    if not max_size:
+        return None
+    if max_size < MIN_READ_SIZE:
+        raise InputError(f"--max-size must be at least {MIN_READ_SIZE} pixels (or 0: the stored size), got {max_size}")
+    return max_size
+
+
 class DepthFolder:
     """The depth maps of a scene folder, checked up front and read one view at a time.
 
@@ -62,9 +79,7 @@ class DepthFolder:
 
     def __init__(self, folder: str | Path, mask_dir: str | Path | None = None, max_size: int | None = None):
         self.root = Path(folder)
-        if max_size is not None and max_size < 16:
-            raise InputError(f"--max-size must be at least 16 pixels, got {max_size}")
-        self.max_size = max_size
+        self.max_size = fusion_read_size(max_size)
         self.scene: Scene = load_mvsnet_scene(self.root)
         missing = [p.name for p in map(self.depth_path, range(len(self.scene))) if not p.is_file()]
         if missing:
@@ -209,7 +224,7 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
     fusion. ``normals``: store each point's normal and confidence from its reference view's maps
     (:mod:`mvsformerpp.fusion.normals`). ``explain_empty``: when no point survives, log why and which
     settings would keep points (trial fusions; parameter sweeps turn this off). ``max_size``: fuse maps larger
-    than this (longer side, pixels) at this size (:class:`DepthFolder`); None: at their stored size;
+    than this (longer side, pixels) at this size (:class:`DepthFolder`); None or 0: at their stored size;
     ``"recorded"``: at the working resolution a ``reconstruct`` run of ``folder`` recorded (else stored).
 
     ``out_ply`` is replaced only when it is new or a PLY file, and not while another run writes its folder
@@ -224,11 +239,8 @@ def default_fusion_config(folder: str | Path, name: str = "normal", **overrides)
     """The fusion preset ``name`` as the ``fuse`` command applies it to ``folder``: without a
     ``conf_threshold`` override, the threshold calibrated for the shipped weights when they made its depth
     maps (its config.json says so), else the preset's."""
-    from mvsformerpp.fusion import get_config
-
-    if overrides.get("conf_threshold") is None:
-        overrides["conf_threshold"] = recorded_calibrated_conf(folder, get_config(name).method)
-    return get_config(name, **overrides)
+    conf = overrides.pop("conf_threshold", None)
+    return choose_fusion(name, recorded_calibration(folder), conf, **overrides).settings
 
 
 def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config: FusionConfig | None = None,
@@ -247,8 +259,7 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     config = config or default_fusion_config(folder)
     if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
         raise InputError(f"--memory-gb must be a positive number of GB, got {memory_gb}")
-    if max_size == RECORDED:
-        max_size = recorded_fusion_size(folder)
+    max_size = fusion_read_size(recorded_fusion_size(folder) if max_size == RECORDED else max_size)
     with claim_output_file(out_ply, b"ply", "PLY"), writing(out_ply):
         return _fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
                                max_size)
@@ -297,15 +308,19 @@ def _fuse_streaming(folder: Path, out_ply: Path, config: FusionConfig, device: s
     return {"ply": out_ply, "points": ply.count, "seconds": seconds, "view_cache": store.stats()}
 
 
-def recorded_calibrated_conf(root: str | Path, method: str) -> float | None:
-    """The fusion threshold calibrated for the shipped weights when the run of ``root`` used them, else None."""
-    from mvsformerpp.io.output_folder import read_run_record
-    from mvsformerpp.models.weights import weights_for
-
+def recorded_weights(root: str | Path) -> Weights | None:
+    """The weights that made the depth maps of ``root``, as the ``reconstruct`` run that wrote it recorded
+    them (None: no such record, e.g. another tool's maps)."""
     record = read_run_record(root)
     if record is None:
         return None
-    return weights_for(record["config"].get("preset"), record["config"].get("checkpoint")).calibrated_conf(method)
+    return weights_for(record["config"].get("preset"), record["config"].get("checkpoint"))
+
+
+def recorded_calibration(root: str | Path) -> Calibration | None:
+    """The fusion thresholds calibrated for the weights that made the depth maps of ``root`` (None: unknown)."""
+    weights = recorded_weights(root)
+    return None if weights is None else weights.calibrated_conf
 
 
 def fuse_reconstruction(folder, plan, quiet: bool) -> tuple[int | None, bool]:
@@ -315,20 +330,20 @@ def fuse_reconstruction(folder, plan, quiet: bool) -> tuple[int | None, bool]:
     same settings. Returns the number of points (None with ``--fusion none``) and whether fusion was reused."""
     from mvsformerpp.io.output_folder import disk_full_guard, settings_hash
     from mvsformerpp.io.ply import ply_vertex_count
-    from mvsformerpp.pipelines.network import fusion_preset
 
-    config = plan.config
-    if config.fusion == "none":
+    config, choice = plan.config, plan.fusion
+    if choice is None:
         return None, False
     ply = folder.cloud
     max_size = plan.long_side if config.fusion_resolution == "working" else None
-    state = settings_hash({"depth": plan.keys, "fusion": config.fusion, "conf": plan.fusion_conf,
+    given = {k: v for k, v in fusion_overrides(config).items() if v is not None}
+    state = settings_hash({"depth": plan.keys, "fusion": config.fusion, "conf": plan.fusion_conf, **given,
                            **({"max_size": max_size} if max_size else {}),
                            **({"masks": str(Path(config.mask_dir).resolve())} if config.mask_dir else {})})
     reused = folder.fusion_done(state)
     if not reused:
         with disk_full_guard(ply):
-            fuse(folder.root, ply, fusion_preset(config.fusion, plan.fusion_conf), quiet=quiet,
+            fuse(folder.root, ply, choice.settings, quiet=quiet,
                  memory_gb=config.memory_gb, mask_dir=config.mask_dir, max_size=max_size)
         folder.mark_fusion(state)
     return ply_vertex_count(ply), reused

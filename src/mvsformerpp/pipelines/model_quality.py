@@ -25,6 +25,7 @@ from pathlib import Path
 
 import numpy as np
 
+from mvsformerpp.fusion.config import METHODS
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
 HELDOUT_SEED = 5_000_000
@@ -146,7 +147,7 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
 
 
 def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes: int = 4,
-                          seed: int = CALIBRATION_SEED, methods=("normal", "dynamic", "gipuma"),
+                          seed: int = CALIBRATION_SEED, methods=tuple(METHODS),
                           grid=CONF_GRID, tau_pct: float = 1.0, num_views: int = 5, height: int = 192,
                           width: int = 256, kinds=SYNTHETIC_KINDS, quiet: bool = True) -> dict:
     """For each fusion method, the confidence threshold of ``grid`` whose fused clouds have the best mean
@@ -171,7 +172,7 @@ def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes
             **choose_fusion_conf(folders, methods, grid, tau_pct)}
 
 
-def choose_fusion_conf(folders, methods=("normal", "dynamic", "gipuma"), grid=CONF_GRID,
+def choose_fusion_conf(folders, methods=tuple(METHODS), grid=CONF_GRID,
                        tau_pct: float = 1.0, beta: float = FUSION_BETA) -> dict:
     """The F-score sweep of :func:`calibrate_fusion_conf` over (synthetic scene, depth-map folder) pairs:
     ``{"fusion_conf": {method: threshold}, "tau_pct", "beta", "table": {method: [rows per threshold]}}``

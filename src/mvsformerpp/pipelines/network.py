@@ -38,37 +38,3 @@ def network_settings(config: ReconstructConfig) -> dict:
     package changes a preset's."""
     model = network_config(config).to_dict()
     return {k: model[k] for k in INFERENCE_SETTINGS}
-
-
-def fusion_conf_for(config: ReconstructConfig, weights: Weights | None = None) -> float | None:
-    """The confidence threshold fusion runs with: ``fusion_conf`` when given; with the shipped weights, the
-    threshold calibrated for them and the preset's fusion method; otherwise None (the preset's own)."""
-    from mvsformerpp.fusion import PRESETS
-
-    weights = weights or run_weights(config)
-    if config.fusion_conf is not None or config.fusion == "none":
-        return config.fusion_conf
-    return weights.calibrated_conf(PRESETS[config.fusion].method)
-
-
-def describe_fusion(config: ReconstructConfig, weights: Weights | None = None) -> str | None:
-    """One line saying how the depth maps will be fused (None without fusion)."""
-    if config.fusion == "none":
-        return None
-    from mvsformerpp.fusion import PRESETS
-
-    conf = fusion_conf_for(config, weights)
-    if config.fusion_conf is not None:
-        why = "--conf"
-    elif conf is not None:
-        why = "calibrated for the default weights; --conf sets another"
-    else:
-        conf, why = PRESETS[config.fusion].conf_threshold, "the preset's"
-    return f"fusion: {config.fusion}, confidence threshold {conf:g} ({why})"
-
-
-def fusion_preset(name: str, conf: float | None = None):
-    """The named fusion preset of :mod:`mvsformerpp.fusion`, with ``conf`` as its confidence threshold."""
-    from mvsformerpp.fusion import get_config
-
-    return get_config(name) if conf is None else get_config(name, conf_threshold=conf)

@@ -13,6 +13,8 @@ from dataclasses import dataclass, field
 from typing import Literal
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.fusion.choice import Calibration, FusionChoice, check_overrides, choose_fusion
+from mvsformerpp.fusion.config import PRESETS as FUSION_PRESETS
 from mvsformerpp.models.config import ModelConfig
 from mvsformerpp.models.presets import PRESETS, RECONSTRUCT_PRESETS
 from mvsformerpp.pipelines.sfm import SfMConfig
@@ -20,8 +22,8 @@ from mvsformerpp.utils.config_flags import flag_name
 
 NETWORK, RUN = "network", "reconstruction"
 
-FUSION_CHOICES = ("normal", "dynamic", "gipuma", "dtu", "tnt_intermediate", "tnt_advanced")
-"""The fusion presets of :mod:`mvsformerpp.fusion.config` (a test keeps them equal to its ``PRESETS``)."""
+FUSION_CHOICES = tuple(FUSION_PRESETS)
+"""The fusion presets (:data:`mvsformerpp.fusion.config.PRESETS`)."""
 
 
 @dataclass(frozen=True)
@@ -81,6 +83,15 @@ class ReconstructConfig:
     fusion_conf: float | None = field(default=None, metadata={"flag": "--conf", "group": RUN, "metavar": "C"})
     """Fusion confidence threshold in [0, 1) (default: the one calibrated for the default weights when they
     run, else the preset's)."""
+    fusion_disp: float | None = field(default=None, metadata={"flag": "--disp", "group": RUN, "metavar": "PX"})
+    """Fusion: reprojection error in pixels (normal) or disparity difference, f * baseline / depth (gipuma)
+    (default: the preset's)."""
+    fusion_num_consistent: int | None = field(default=None, metadata={"flag": "--num-consistent", "group": RUN,
+                                                                      "metavar": "N"})
+    """Fusion (normal and gipuma): consistent source views needed to keep a pixel (default: the preset's)."""
+    fusion_num_src_views: int | None = field(default=None, metadata={"flag": "--num-src-views", "group": RUN,
+                                                                     "metavar": "N"})
+    """Fusion: source views checked per reference view, its best neighbours (default: the preset's)."""
     fusion_resolution: Literal["working", "original"] = field(default="working", metadata={"group": RUN})
     """Size of the depth maps fusion reads: working, the resolution they were computed at (photos larger
     than it do not multiply the points or the fusion time), or original, the maps as written."""
@@ -119,8 +130,7 @@ class ReconstructConfig:
             raise InputError(f"{config_flag('depth_format')} must be auto, interval or max, got {self.depth_format!r}")
         if not (math.isfinite(self.interval_scale) and self.interval_scale > 0):
             raise InputError(f"{config_flag('interval_scale')} must be a positive number, got {self.interval_scale}")
-        if self.fusion_conf is not None and not 0 <= self.fusion_conf < 1:
-            raise InputError(f"{config_flag('fusion_conf')} must be a confidence in [0, 1), got {self.fusion_conf}")
+        check_overrides(**fusion_overrides(self), conf=self.fusion_conf)
         if self.cvt_shifts is not None and not 1 <= self.cvt_shifts <= 4:
             raise InputError(f"{config_flag('cvt_shifts')} must be 1, 2, 3 or 4 placements of the token grid, "
                              f"got {self.cvt_shifts}")
@@ -132,6 +142,13 @@ class ReconstructConfig:
         if not all(math.isfinite(t) and t > 0 for t in self.temperatures):
             raise InputError(f"{config_flag('temperatures')} must be four positive numbers (the official runs use "
                              "5 5 5 1), got " + " ".join(f"{t:g}" for t in self.temperatures))
+
+    def fusion_choice(self, calibrated: Calibration | None) -> FusionChoice | None:
+        """The fusion this run does of depth maps made by weights with the ``calibrated`` thresholds
+        (:func:`~mvsformerpp.fusion.choice.choose_fusion`); None with ``--fusion none``."""
+        if self.fusion == "none":
+            return None
+        return choose_fusion(self.fusion, calibrated, self.fusion_conf, **fusion_overrides(self))
 
     @property
     def stage1_min_parallax(self) -> float:
@@ -146,10 +163,19 @@ class ReconstructConfig:
         :func:`~mvsformerpp.pipelines.network.network_settings`; ``min_parallax`` is given resolved)."""
         d = dataclasses.asdict(self)
         d["min_parallax"] = self.stage1_min_parallax
-        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_resolution", "mask_dir",
+        for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_disp", "fusion_num_consistent",
+                  "fusion_num_src_views", "fusion_resolution", "mask_dir",
                   "sfm", "cvt_shifts"):  # (SfM: cameras)
             d.pop(k)
         return d
+
+
+def fusion_overrides(settings) -> dict:
+    """The fusion settings besides the threshold (None: the preset's) as
+    :class:`~mvsformerpp.fusion.FusionConfig` fields, from a :class:`ReconstructConfig` or from the parsed
+    flags of its fusion fields (``fuse`` shares them)."""
+    return {"disp_threshold": settings.fusion_disp, "num_consistent": settings.fusion_num_consistent,
+            "num_src_views": settings.fusion_num_src_views}
 
 
 def config_flag(name: str) -> str:

@@ -15,12 +15,13 @@ from pathlib import Path
 
 import torch
 
+from mvsformerpp.fusion.choice import FusionChoice
 from mvsformerpp.inference.fingerprint import view_fingerprints
 from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models.presets import PRESETS
 from mvsformerpp.models.weights import Weights
-from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings
+from mvsformerpp.pipelines.network import network_settings
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.utils.precision import attention_in_bf16, precision_name
 
@@ -53,8 +54,8 @@ class RunPlan:
     """Per view: the hash of what its depth map depends on."""
     weights: Weights
     """The weights the network runs."""
-    fusion_conf: float | None
-    """Fusion's confidence threshold (None: the fusion preset's own)."""
+    fusion: FusionChoice | None
+    """The settings fusion runs with (None: ``--fusion none``)."""
     attention_bf16: bool = False
     """Stage 1's transformer attention in bf16 inside the fp32 network (``--precision auto``, the preset's
     own network only: a network passed by the caller runs as the precision names)."""
@@ -70,11 +71,15 @@ class RunPlan:
         return resolved_size(self.long_side, self.plans)
 
     @property
+    def fusion_conf(self) -> float | None:
+        """Fusion's confidence threshold where it is not the fusion preset's own (given or calibrated), as
+        config.json and the summary record it (``--conf`` as given with ``--fusion none``)."""
+        return self.config.fusion_conf if self.fusion is None else self.fusion.conf
+
+    @property
     def preview_conf(self) -> float | None:
         """The threshold below which the depth previews grey pixels: what fusion drops (None without fusion)."""
-        if self.config.fusion == "none":
-            return None
-        return self.fusion_conf if self.fusion_conf is not None else fusion_preset(self.config.fusion).conf_threshold
+        return None if self.fusion is None else self.fusion.settings.conf_threshold
 
 
 def resolved_size(long_side: int, plans: list[ViewResize]) -> dict:
@@ -108,7 +113,7 @@ def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str
     keys = view_fingerprints(scene, config.num_views, settings, weights.identity)
     return RunPlan(config=config, input_path=Path(input_path), scene=scene, source_format=full.source_format,
                    input_views=len(full), fingerprint=fingerprint, device=device, long_side=long_side, plans=plans,
-                   keys=keys, weights=weights, fusion_conf=fusion_conf_for(config, weights),
+                   keys=keys, weights=weights, fusion=config.fusion_choice(weights.calibrated_conf),
                    attention_bf16=attention_bf16)
 
 
