@@ -12,8 +12,9 @@ from mvsformerpp.cli import main
 from mvsformerpp.errors import InputError
 from mvsformerpp.fusion import PRESETS, fuse_depth_maps, get_config
 from mvsformerpp.fusion.store import VIEW_BYTES_PER_PIXEL
+from mvsformerpp.io.depth_folder import load_depth_folder
 from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
-from mvsformerpp.pipelines.fuse import fuse_streaming, load_depth_folder, minimum_memory_bytes, view_cache_bytes
+from mvsformerpp.pipelines.fuse import fuse_streaming, minimum_memory_bytes, view_cache_bytes
 from mvsformerpp.synth import generate_scene
 from mvsformerpp.synth.strip import generate_strip_scene
 

@@ -169,14 +169,13 @@ def _cmd_tnt_submit(args) -> int:
 
     items = args.items
     if all("=" in it for it in items):  # SCENE=RECONSTRUCT_DIR: the folder `reconstruct` writes
-        try:
-            from mvsformerpp.io.mvsnet import load_mvsnet_scene
-        except ImportError as e:
-            raise InputError("SCENE=DIR needs the MVSNet scene reader; give SCENE PLY LOG triples instead") from e
+        from mvsformerpp.io.mvsnet import load_mvsnet_scene
+        from mvsformerpp.io.output_folder import CLOUD
+
         entries = {}
         for it in items:
             name, folder = it.split("=", 1)
-            entries[name] = (Path(folder) / "fused.ply", load_mvsnet_scene(folder))
+            entries[name] = (Path(folder) / CLOUD, load_mvsnet_scene(folder))
     elif len(items) % 3 == 0:
         entries = {items[i]: (items[i + 1], read_log(items[i + 2])) for i in range(0, len(items), 3)}
     else:

@@ -18,6 +18,7 @@ import torch
 import torch.nn.functional as F
 
 from mvsformerpp.geometry.camera import scale_intrinsics
+from mvsformerpp.geometry.resize import fit_long_side
 
 # The network downsamples by 8, its stage-1 transformer takes patches of 4x4 cells (32 pixels) and its
 # DINOv2 branch works on 14-px patches of a copy resized by 7/16: image sides must be multiples of 32.
@@ -149,10 +150,7 @@ def plan_views(sizes: list[tuple[int, int]], long_side: int) -> list[ViewResize]
     """
     if not sizes:
         raise ValueError("no views")
-    resized = []
-    for w, h in sizes:
-        s = min(1.0, long_side / max(w, h))
-        resized.append((max(1, round(w * s)), max(1, round(h * s))))
+    resized = [fit_long_side(w, h, long_side) for w, h in sizes]
     cw = round_up(max(w for w, _ in resized))
     ch = round_up(max(h for _, h in resized))
     return [ViewResize(w, h, rw, rh, cw, ch) for (w, h), (rw, rh) in zip(sizes, resized)]

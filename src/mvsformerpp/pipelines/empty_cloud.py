@@ -19,7 +19,7 @@ SAMPLES_PER_VIEW = 1 << 18
 def confidence_percentiles(depth_folder) -> dict[int, float] | None:
     """10th/50th/90th percentiles of the confidence over pixels with a depth (None without any).
 
-    ``depth_folder`` reads views one at a time (:class:`mvsformerpp.pipelines.fuse.DepthFolder`).
+    ``depth_folder`` reads views one at a time (:class:`mvsformerpp.io.depth_folder.DepthFolder`).
     """
     if not depth_folder.has_confidence:
         return None

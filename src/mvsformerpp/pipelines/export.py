@@ -38,7 +38,7 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
     from mvsformerpp.fusion.normals import normal_map
     from mvsformerpp.io.colmap_dense import write_colmap_array
     from mvsformerpp.io.colmap_model import ColmapCamera, ColmapImage, ColmapModel, rotmat_to_qvec, write_model
-    from mvsformerpp.pipelines.fuse import load_depth_folder
+    from mvsformerpp.io.depth_folder import load_depth_folder
 
     folder, target = Path(folder), Path(target)
     if target.exists() and (not target.is_dir() or any(target.iterdir())) and not overwrite:

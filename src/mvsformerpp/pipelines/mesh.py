@@ -66,9 +66,9 @@ def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
 
     from mvsformerpp.fusion import make_views
     from mvsformerpp.inference.resolution import available_memory_bytes
+    from mvsformerpp.io.depth_folder import load_depth_folder
     from mvsformerpp.meshing.extract import marching_cubes
     from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL, integrate, plan_grid, scene_box, surface_box
-    from mvsformerpp.pipelines.fuse import load_depth_folder
 
     scene, depths, confs, images = load_depth_folder(require_depth_maps(folder))
     views = make_views(scene, depths, confs, images, config.device)
