@@ -9,10 +9,15 @@ Layouts (names returned by :func:`detect_layout`):
 ``colmap``      COLMAP project (``sparse/0``, ``sparse``, ``dense/sparse`` or the model files directly)
 ``middlebury``  a ``*_par.txt`` file or a folder holding one
 ``images``      photos without cameras: not loadable here (structure from motion is needed first)
+
+Each is a :class:`Layout` record of :data:`TABLE`: its name, its words in the "looked for" message, the
+test that recognises it and the reader that loads it. Adding a format is its reader module plus one record.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
+from dataclasses import dataclass
 from pathlib import Path
 
 from mvsformerpp.errors import InputError
@@ -29,15 +34,6 @@ from mvsformerpp.io.images import list_images
 from mvsformerpp.io.middlebury import find_par_file, load_middlebury_scene
 from mvsformerpp.io.mvsnet import DEFAULT_NUM_DEPTH, DepthFormat, cam_files, load_mvsnet_scene
 from mvsformerpp.io.scene import Scene
-
-LAYOUTS = ("mvsnet", "tnt", "dtu", "blendedmvs", "colmap", "middlebury", "images")
-
-_LOOKED_FOR = (
-    "an MVSNet folder (images/ + cams/NNNNNNNN_cam.txt [+ pair.txt]), a Tanks-and-Temples scene "
-    "(the same + short_range_cameras/ beside it), a DTU training root (Cameras/ + Rectified/), a BlendedMVS "
-    "scene (blended_images/ + cams/), a COLMAP project (sparse/0, sparse/ or cameras/images/points3D "
-    ".bin/.txt, + images/), a Middlebury *_par.txt file or a folder holding one"
-)
 
 _MODEL_FILES = {f"{n}{e}" for n in ("cameras", "images", "points3D") for e in (".bin", ".txt")}
 
@@ -67,39 +63,127 @@ def _refuse_incomplete(path: Path) -> None:
                          "images/); add them, or give a folder of photos for structure-from-motion", path)
 
 
+def _has_cams(path: Path) -> bool:
+    return path.is_dir() and (path / "images").is_dir() and mvsnet_cam_dir(path) is not None
+
+
+def _is_mvsnet(path: Path) -> bool:
+    return _has_cams(path) and not (path.parent / "short_range_cameras").is_dir()
+
+
+def _is_tnt(path: Path) -> bool:
+    return _has_cams(path) and (path.parent / "short_range_cameras").is_dir()
+
+
+def _is_colmap(path: Path) -> bool:
+    if path.is_file():
+        return path.name in _MODEL_FILES and bool(model_extension(path.parent))
+    try:
+        find_colmap_model(path)
+    except InputError:
+        return False
+    return True
+
+
+def _is_middlebury(path: Path) -> bool:
+    return path.name.endswith("_par.txt") if path.is_file() else find_par_file(path) is not None
+
+
+def _is_photo_folder(path: Path) -> bool:
+    """Photos without cameras, unless the folder is an incomplete scene (refused, naming what is missing)."""
+    if path.is_file():
+        return False
+    _refuse_incomplete(path)
+    return bool(list_images(path) or list_images(path / "images"))
+
+
+@dataclass(frozen=True)
+class LoadOptions:
+    """How a scene is read (see :func:`load_scene`); each layout uses the options that apply to it."""
+
+    num_neighbors: int = 10
+    depth_format: DepthFormat = "auto"
+    num_depth: int = DEFAULT_NUM_DEPTH
+    interval_scale: float = 1.0
+    scan: str | int | None = None
+    short_range: bool = False
+    image_dir: str | Path | None = None
+
+    def cams(self) -> dict:
+        """The options of MVSNet cam files (:mod:`mvsformerpp.io.mvsnet`)."""
+        return dict(depth_format=self.depth_format, num_depth=self.num_depth, interval_scale=self.interval_scale,
+                    num_neighbors=self.num_neighbors)
+
+
+def _folder(path: Path) -> Path:
+    return path.parent if path.is_file() else path
+
+
+def _load_mvsnet(path: Path, o: LoadOptions) -> Scene:
+    root = _folder(path)
+    cam_dir = mvsnet_cam_dir(root)
+    return load_mvsnet_scene(root, cam_dir=cam_dir.name if cam_dir else None, **o.cams())
+
+
+def _refuse_photos(path: Path, o: LoadOptions) -> Scene:
+    raise InputError("this folder holds photos but no cameras; multi-view stereo needs calibrated cameras. Run "
+                     "structure from motion first (the reconstruct pipeline does it with COLMAP), or give a folder "
+                     f"with cameras: {looked_for()}", path)
+
+
+@dataclass(frozen=True)
+class Layout:
+    """A scene layout: how to recognise it and how to load it."""
+
+    name: str
+    looks_like: str
+    """What it is, in the words of the "looked for" message (empty: not listed there)."""
+    detect: Callable[[Path], bool]
+    """Whether the file or folder at a path is this layout (the table's order decides between layouts)."""
+    load: Callable[[Path, LoadOptions], Scene]
+
+
+TABLE: tuple[Layout, ...] = (
+    Layout("mvsnet", "an MVSNet folder (images/ + cams/NNNNNNNN_cam.txt [+ pair.txt])", _is_mvsnet, _load_mvsnet),
+    Layout("tnt", "a Tanks-and-Temples scene (the same + short_range_cameras/ beside it)", _is_tnt,
+           lambda p, o: load_tnt_scene(_folder(p), short_range=o.short_range, **o.cams())),
+    Layout("dtu", "a DTU training root (Cameras/ + Rectified/)", lambda p: p.is_dir() and is_dtu_root(p),
+           lambda p, o: load_dtu_scene(p, scan=o.scan, **o.cams())),
+    Layout("blendedmvs", "a BlendedMVS scene (blended_images/ + cams/)",
+           lambda p: p.is_dir() and blended_scene_dir(p) is not None,
+           lambda p, o: load_blended_scene(p, **o.cams())),
+    Layout("colmap", "a COLMAP project (sparse/0, sparse/ or cameras/images/points3D .bin/.txt, + images/)",
+           _is_colmap, lambda p, o: load_colmap_scene(_folder(p), image_dir=o.image_dir,
+                                                      num_neighbors=o.num_neighbors)),
+    Layout("middlebury", "a Middlebury *_par.txt file or a folder holding one", _is_middlebury,
+           lambda p, o: load_middlebury_scene(p, num_neighbors=o.num_neighbors)),
+    Layout("images", "", _is_photo_folder, _refuse_photos),
+)
+"""Every layout, in the order :func:`detect_layout` tries them (the first whose test passes wins; the
+tests are written not to overlap) and the "looked for" message lists them."""
+
+LAYOUTS: dict[str, Layout] = {layout.name: layout for layout in TABLE}
+
+
+def looked_for() -> str:
+    """The layouts a scene may have, in words."""
+    return ", ".join(layout.looks_like for layout in TABLE if layout.looks_like)
+
+
 def detect_layout(path: str | Path) -> str:
     """The layout name of the scene at ``path`` (see the module docstring); InputError when none fits."""
     path = Path(path)
     if not path.exists():
         raise InputError("no such file or folder", path)
+    if path.is_file() and path.name == "pair.txt":
+        return detect_layout(path.parent)
+    for layout in TABLE:
+        if layout.detect(path):
+            return layout.name
     if path.is_file():
-        if path.name.endswith("_par.txt"):
-            return "middlebury"
-        if path.name in _MODEL_FILES and model_extension(path.parent):
-            return "colmap"
-        if path.name == "pair.txt":
-            return detect_layout(path.parent)
-        raise InputError(f"cannot tell the scene layout from this file; give a folder or file holding {_LOOKED_FOR}",
+        raise InputError(f"cannot tell the scene layout from this file; give a folder or file holding {looked_for()}",
                          path)
-    if is_dtu_root(path):
-        return "dtu"
-    if blended_scene_dir(path) is not None:
-        return "blendedmvs"
-    if (path / "images").is_dir() and mvsnet_cam_dir(path) is not None:
-        if (path.parent / "short_range_cameras").is_dir():
-            return "tnt"
-        return "mvsnet"
-    try:
-        find_colmap_model(path)
-        return "colmap"
-    except InputError:
-        pass
-    if find_par_file(path) is not None:
-        return "middlebury"
-    _refuse_incomplete(path)
-    if list_images(path) or list_images(path / "images"):
-        return "images"
-    raise InputError(f"no scene found here; looked for {_LOOKED_FOR}", path)
+    raise InputError(f"no scene found here; looked for {looked_for()}", path)
 
 
 def load_scene(
@@ -135,29 +219,9 @@ def load_scene(
         if not 0 < lo < hi:
             raise InputError(f"depth range {lo:g}..{hi:g} must satisfy 0 < min < max")
         depth_format = "none"
-    cam_args = dict(depth_format=depth_format, num_depth=num_depth, interval_scale=interval_scale, num_neighbors=k)
-    if layout == "images":
-        raise InputError(
-            "this folder holds photos but no cameras; multi-view stereo needs calibrated cameras. Run structure "
-            "from motion first (the reconstruct pipeline does it with COLMAP), or give a folder with cameras: "
-            + _LOOKED_FOR,
-            path,
-        )
-    if layout == "middlebury":
-        scene = load_middlebury_scene(path, num_neighbors=k)
-    elif layout == "colmap":
-        target = path.parent if path.is_file() else path
-        scene = load_colmap_scene(target, image_dir=image_dir, num_neighbors=k)
-    elif layout == "dtu":
-        scene = load_dtu_scene(path, scan=scan, **cam_args)
-    elif layout == "blendedmvs":
-        scene = load_blended_scene(path, **cam_args)
-    elif layout == "tnt":
-        scene = load_tnt_scene(path.parent if path.is_file() else path, short_range=short_range, **cam_args)
-    else:
-        root = path.parent if path.is_file() else path
-        cam_dir = mvsnet_cam_dir(root)
-        scene = load_mvsnet_scene(root, cam_dir=cam_dir.name if cam_dir else None, **cam_args)
+    options = LoadOptions(num_neighbors=k, depth_format=depth_format, num_depth=num_depth,
+                          interval_scale=interval_scale, scan=scan, short_range=short_range, image_dir=image_dir)
+    scene = LAYOUTS[layout].load(path, options)
     if depth_range is not None:
         for v in scene.views:
             v.depth_min, v.depth_max = lo, hi
