@@ -399,18 +399,18 @@ def test_auto_precision_takes_bf16_attention_for_the_presets_network_only(tmp_pa
     needs_network()
     from mvsformerpp import build_model
     from mvsformerpp.models.cvt import CVTAttention
-    from mvsformerpp.pipelines import depth_maps
+    from mvsformerpp.pipelines import network
     from mvsformerpp.utils import precision
 
     monkeypatch.setattr(precision, "cpu_bf16_flags", lambda: frozenset({"avx512_bf16", "amx_bf16"}))
     seen = []
-    original = depth_maps.SceneInference
+    original = network.SceneInference
 
     def spy(net, *args, **kw):
         seen.append(kw["attention_bf16"])
         return original(net, *args, **kw)
 
-    monkeypatch.setattr(depth_maps, "SceneInference", spy)
+    monkeypatch.setattr(network, "SceneInference", spy)
     scene = temple_subset(tmp_path / "temple", [1, 2, 3])
     reconstruct(scene, tmp_path / "own", FAST, quiet=True)
     given = build_model("lite")

@@ -14,8 +14,8 @@ from pathlib import Path
 import pytest
 
 from mvsformerpp.errors import InputError
-from mvsformerpp.inference.ranks import Ranks
 from mvsformerpp.io.pfm import read_pfm
+from mvsformerpp.pipelines.ranks import Ranks
 from mvsformerpp.synth.strip import generate_strip_scene
 
 ENTRY = Path(__file__).with_name("torchrun_entry.py")

@@ -14,6 +14,7 @@ from __future__ import annotations
 import logging
 import math
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -25,10 +26,13 @@ from mvsformerpp.fusion.choice import Calibration, choose_fusion
 from mvsformerpp.fusion.normals import ReferenceAttributes
 from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
 from mvsformerpp.io.depth_folder import DepthFolder, fusion_read_size
-from mvsformerpp.io.output_folder import CLOUD, read_run_record
-from mvsformerpp.io.ply import PlyStreamWriter
+from mvsformerpp.io.output_folder import CLOUD, OutputFolder, disk_full_guard, read_run_record, settings_hash
+from mvsformerpp.io.ply import PlyStreamWriter, ply_vertex_count
 from mvsformerpp.models.weights import Weights, weights_for
+from mvsformerpp.pipelines.depth_maps import DepthMaps
 from mvsformerpp.pipelines.reconstruct_config import fusion_overrides
+from mvsformerpp.pipelines.run import Run
+from mvsformerpp.pipelines.run_plan import RunPlan
 
 log = logging.getLogger(__name__)
 
@@ -177,14 +181,32 @@ def recorded_calibration(root: str | Path) -> Calibration | None:
     return None if weights is None else weights.calibrated_conf
 
 
-def fuse_reconstruction(folder, plan, quiet: bool) -> tuple[int | None, bool]:
-    """Stage 5 of ``reconstruct``: fuse the depth maps of ``folder`` (an
-    :class:`~mvsformerpp.io.output_folder.OutputFolder`) as the run's plan (a
-    :class:`~mvsformerpp.pipelines.run_plan.RunPlan`) says, unless the same maps were already fused with the
-    same settings. Returns the number of points (None with ``--fusion none``) and whether fusion was reused."""
-    from mvsformerpp.io.output_folder import disk_full_guard, settings_hash
-    from mvsformerpp.io.ply import ply_vertex_count
+@dataclass(frozen=True)
+class Fused:
+    """What stage 5 of ``reconstruct`` makes."""
 
+    maps: list[DepthMaps]
+    """What stage 4 made on every process, rank 0's first."""
+    points: int | None
+    """Points of the fused cloud (None: ``--fusion none``)."""
+    reused: bool
+    """The cloud of an earlier run with the same depth maps and settings was kept."""
+    seconds: float
+
+
+def fuse_maps(run: Run, maps: list[DepthMaps]) -> Fused:
+    """Stage 5 of ``reconstruct`` (rank 0): the processes' records folded into ``progress.json``, then the
+    depth maps fused into ``fused.ply`` as the plan says (:func:`fuse_reconstruction`)."""
+    run.folder.fold_rank_progress()
+    t = time.perf_counter()
+    points, reused = fuse_reconstruction(run.folder, maps[0].plan, run.quiet)
+    return Fused(maps, points, reused, time.perf_counter() - t)
+
+
+def fuse_reconstruction(folder: OutputFolder, plan: RunPlan, quiet: bool) -> tuple[int | None, bool]:
+    """Fuse the depth maps of ``folder`` as the run's plan says, unless the same maps were already fused with
+    the same settings. Returns the number of points (None with ``--fusion none``) and whether fusion was
+    reused."""
     config, choice = plan.config, plan.fusion
     if choice is None:
         return None, False

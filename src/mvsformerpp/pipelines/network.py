@@ -1,17 +1,52 @@
-"""Stage 3 of ``reconstruct``: the network of the run's preset and settings, with the run's weights.
+"""Stage 3 of ``reconstruct``: the network of the run's preset and settings with the run's weights, and the
+runner that takes it over the scene view by view.
 
-Which weights run is decided once (:func:`mvsformerpp.models.weights.weights_for`); this module adds the
-preset's network as ``reconstruct``'s settings change it.
+Which weights run is decided once (:func:`mvsformerpp.models.weights.weights_for`); the network is built
+only when a view is left to compute.
 """
 
 from __future__ import annotations
 
+import time
+from dataclasses import dataclass
+
 import torch
 
-from mvsformerpp.models.config import INFERENCE_SETTINGS, ModelConfig
-from mvsformerpp.models.presets import get_config
+from mvsformerpp.inference.runner import SceneInference
+from mvsformerpp.io.images import read_image
 from mvsformerpp.models.weights import Weights, weights_for
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+from mvsformerpp.pipelines.run import Run
+from mvsformerpp.pipelines.run_plan import RunPlan
+
+
+@dataclass(frozen=True)
+class Started:
+    """What stage 3 makes: the runner and its order of the views left to compute (None: nothing is left)."""
+
+    plan: RunPlan
+    runner: SceneInference | None
+    schedule: dict | None
+    """The cache-friendly order of the views left (``order``) and its statistics."""
+    since: float
+    """``time.perf_counter()`` when the stage began (the depth maps' time counts from it)."""
+
+
+def start_network(run: Run, plan: RunPlan) -> Started:
+    """Stage 3: the run's network (the caller's, or the preset's with the run's weights) and its view-by-view
+    runner over the plan's scene, with a cache-friendly order of the views left; nothing is built when no
+    view is left."""
+    since = time.perf_counter()
+    if not plan.todo:
+        return Started(plan, None, None, since)
+    config, scene = plan.config, plan.scene
+    net = run.model if run.model is not None else build_network(config, plan.weights)
+    runner = SceneInference(net, scene, plan.plans, lambda i: read_image(scene.views[i].image_path),
+                            num_views=config.num_views, num_depth=config.num_depth,
+                            temperatures=config.temperatures, device=run.device, precision=config.precision,
+                            cache_bytes=config.cache_mb << 20, output_resolution=config.output_resolution,
+                            attention_bf16=plan.attention_bf16, min_parallax=config.stage1_min_parallax)
+    return Started(plan, runner, runner.schedule(list(plan.todo)), since)
 
 
 def run_weights(config: ReconstructConfig) -> Weights:
@@ -23,18 +58,4 @@ def build_network(config: ReconstructConfig, weights: Weights | None = None) -> 
     """The preset's network on the configured device with ``weights`` (default: :func:`run_weights`), in
     evaluation mode."""
     weights = weights or run_weights(config)
-    return weights.build(network_config(config)).to(torch.device(config.device)).eval()
-
-
-def network_config(config: ReconstructConfig) -> ModelConfig:
-    """The preset's network configuration with the settings ``config`` changes."""
-    return get_config(config.preset, **({} if config.cvt_shifts is None else {"cvt_shifts": config.cvt_shifts}))
-
-
-def network_settings(config: ReconstructConfig) -> dict:
-    """The run-time settings of the network ``build_network(config)`` builds that change its depth maps but
-    not its weights (stage 1's local evidence and token-grid placements): part of each view's fingerprint,
-    so that a resumed run redoes the views made with other settings, also when a new version of the
-    package changes a preset's."""
-    model = network_config(config).to_dict()
-    return {k: model[k] for k in INFERENCE_SETTINGS}
+    return weights.build(config.network_config()).to(torch.device(config.device)).eval()

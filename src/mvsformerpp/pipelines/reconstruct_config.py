@@ -15,8 +15,8 @@ from typing import Literal
 from mvsformerpp.errors import InputError
 from mvsformerpp.fusion.choice import Calibration, FusionChoice, check_overrides, choose_fusion
 from mvsformerpp.fusion.config import PRESETS as FUSION_PRESETS
-from mvsformerpp.models.config import ModelConfig
-from mvsformerpp.models.presets import PRESETS, RECONSTRUCT_PRESETS
+from mvsformerpp.models.config import INFERENCE_SETTINGS, ModelConfig
+from mvsformerpp.models.presets import PRESETS, RECONSTRUCT_PRESETS, get_config
 from mvsformerpp.pipelines.sfm import SfMConfig
 from mvsformerpp.utils.config_flags import flag_name
 
@@ -157,10 +157,21 @@ class ReconstructConfig:
             return float(self.min_parallax)
         return PRESETS[self.preset].min_parallax
 
+    def network_config(self) -> ModelConfig:
+        """The preset's network configuration with the settings of this run that change it."""
+        return get_config(self.preset, **({} if self.cvt_shifts is None else {"cvt_shifts": self.cvt_shifts}))
+
+    def network_settings(self) -> dict:
+        """The run-time settings of this run's network that change its depth maps but not its weights (stage 1's
+        local evidence and token-grid placements): part of each view's fingerprint, so that a resumed run
+        redoes the views made with other settings, also when a new version of the package changes a preset's."""
+        model = self.network_config().to_dict()
+        return {k: model[k] for k in INFERENCE_SETTINGS}
+
     def result_settings(self) -> dict:
         """The fields that change the depth maps (not device or cache size, which only change speed; the
-        network's settings, ``cvt_shifts`` with its preset default resolved, are
-        :func:`~mvsformerpp.pipelines.network.network_settings`; ``min_parallax`` is given resolved)."""
+        network's settings, ``cvt_shifts`` with its preset default resolved, are :meth:`network_settings`;
+        ``min_parallax`` is given resolved)."""
         d = dataclasses.asdict(self)
         d["min_parallax"] = self.stage1_min_parallax
         for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_disp", "fusion_num_consistent",

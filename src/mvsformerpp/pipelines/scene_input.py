@@ -9,16 +9,55 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import time
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from mvsformerpp.errors import InputError, MVSFormerError
+from mvsformerpp.io.output_folder import scene_fingerprint
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
+from mvsformerpp.pipelines.run import Run
 from mvsformerpp.pipelines.sfm import SfMConfig
 
 log = logging.getLogger(__name__)
+
+
+@dataclass(frozen=True)
+class SceneInput:
+    """What stage 1 makes: the input as read, and the scene to reconstruct."""
+
+    full: Scene
+    """The input as read (before ``--max-images`` and the depth-range overrides)."""
+    scene: Scene
+    """The views to reconstruct, overrides applied and checked."""
+    fingerprint: str
+    """Identity of the input scene (cameras and image sizes), stored in config.json."""
+    seconds: float
+    """Seconds since the run started."""
+    sfm_reused: bool | None
+    """Structure from motion was done by an earlier run (None: it did not run for this input)."""
+
+
+def read_input(run: Run, _: None = None) -> SceneInput:
+    """Stage 1: the input as a checked scene (structure from motion or undistortion first, where needed),
+    refused when the output folder holds another scene's outputs; bad masks fail now, not after the depth
+    maps."""
+    config = run.config
+    full = load_input(run.input_path, run.folder.root, quiet=run.quiet, depth_range=config.depth_range,
+                      depth_format=config.depth_format, sfm=config.sfm)
+    fingerprint = scene_fingerprint(full)
+    run.folder.check_scene(fingerprint)
+    scene = prepare_scene(full, config)
+    if config.mask_dir is not None:
+        from mvsformerpp.io.masks import load_masks
+
+        load_masks(config.mask_dir, [v.name for v in scene.views], [(v.height, v.width) for v in scene.views])
+    report = run.folder.root / "sfm" / "report.json"  # written only when SfM runs: older than this run means reused
+    reused = report.stat().st_mtime < run.started if report.is_file() else None
+    return SceneInput(full, scene, fingerprint, time.perf_counter() - run.t0, reused)
 
 
 def load_input(path: str | Path, out: Path, quiet: bool = False,

@@ -1,4 +1,5 @@
-"""The processes of one reconstruction: one for the plain command, several under ``torchrun``.
+"""The processes of one reconstruction: one for the plain command, several under ``torchrun``; and the
+choreography of ``reconstruct``'s stages among them (:class:`Together`, :meth:`Ranks.perform`).
 
 ``torchrun --nproc-per-node N [--nnodes M ...] -m mvsformerpp reconstruct INPUT -o OUT`` starts N x M
 copies of the command with ``RANK``/``WORLD_SIZE``/``LOCAL_RANK`` and a rendezvous address in their
@@ -15,6 +16,10 @@ The checks that make a multi-process run safe, each with one clear message:
 * :meth:`Ranks.outcome`: a rank that failed is named to the others, which stop and keep what is done.
 
 :class:`Ranks` itself is the single-process case, where all of this is trivial.
+
+Each stage of ``reconstruct`` is a plain function ``stage(run, product) -> product`` that knows nothing
+of the other processes; its :class:`Stage` record says how the ranks run it (:class:`Together`), and
+:meth:`Ranks.perform` plays that part: who computes, who waits, what is exchanged.
 """
 
 from __future__ import annotations
@@ -23,7 +28,10 @@ import secrets
 import shutil
 import socket
 from collections.abc import Callable, Sequence
+from dataclasses import dataclass
 from datetime import timedelta
+from enum import Enum
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +46,25 @@ RANKS_DIR = ".ranks"
 
 class RankFailedError(MVSFormerError):
     """Another rank of the run failed."""
+
+
+class Together(Enum):
+    """How the ranks of a run perform a stage (the single process performs it once, all the same)."""
+
+    IN_TURN = "rank 0 first, then the others, each for its own product (what creates shared files)"
+    EACH = "every rank at once, each for its own product"
+    MAIN = "rank 0 alone; every rank receives its product"
+    SHARE = "every rank on its share of the work; every rank receives the products of all, rank 0's first"
+
+
+@dataclass(frozen=True)
+class Stage:
+    """A stage of a run: ``run(settings, previous product) -> product``, and how the ranks perform it."""
+
+    run: Callable[[Any, Any], Any]
+    together: Together
+    agree: Callable[[Any], dict] | None = None
+    """What every rank's product must hold the same of (checked after the stage, :meth:`Ranks.agree`)."""
 
 
 class Ranks(RankMixin):
@@ -68,6 +95,22 @@ class Ranks(RankMixin):
             except Exception as e:  # (exchanged below, then raised again)
                 error = e
         self.outcome(error)
+        return result
+
+    def perform(self, stage: Stage, run: Any, product: Any) -> Any:
+        """Perform ``stage`` on ``run`` and the previous ``product`` as its :class:`Together` says; a failure
+        on any rank stops every rank (:meth:`step`)."""
+        work = partial(stage.run, run, product)
+        if stage.together is Together.IN_TURN:
+            result = self.in_turn(work)
+        elif stage.together is Together.EACH:
+            result = self.step(work)
+        elif stage.together is Together.MAIN:
+            result = self.broadcast(self.step(work, only_main=True))
+        else:
+            result = self.gather(self.step(work))
+        if stage.agree is not None:
+            self.agree(stage.agree(result))
         return result
 
     def in_turn(self, fn: Callable[[], Any]) -> Any:
@@ -104,6 +147,12 @@ class Ranks(RankMixin):
     def stop_requested(self, folder: Path) -> str | None:
         """Another rank failed while this one works (checked between views): its message, else None."""
         return None
+
+    def raise_if_stopped(self, folder: Path) -> None:
+        """Raise :class:`StoppedByOtherRank` when another rank failed (:meth:`stop_requested`)."""
+        message = self.stop_requested(folder)
+        if message is not None:
+            raise StoppedByOtherRank(message)
 
     def close(self) -> None:
         """Leave the process group."""
