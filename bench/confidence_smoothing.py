@@ -57,11 +57,11 @@ def smooth_inverse_depth(depth: np.ndarray, conf: np.ndarray, gray: np.ndarray, 
 
 
 def main() -> None:
+    from model_quality import WINDOWS, synthetic_quality  # bench/ is on the path when a bench script runs
     from PIL import Image
 
     from mvsformerpp.io.mvsnet import read_cam
     from mvsformerpp.io.pfm import read_pfm
-    from mvsformerpp.pipelines.model_quality import WINDOWS, synthetic_quality
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
     from mvsformerpp.utils.atomic import atomic_write_text
 

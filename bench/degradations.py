@@ -125,7 +125,7 @@ def flat_mask(img: np.ndarray) -> np.ndarray:
 
 
 def preparer(condition: str, seed: int):
-    """The ``prepare`` hook of :func:`~mvsformerpp.pipelines.model_quality.synthetic_quality` for
+    """The ``prepare`` hook of :func:`model_quality.synthetic_quality` (bench/model_quality.py) for
     ``condition``; it first stores each view's flat pixels (``flat/NNNNNNNN.npy``: flatness is the
     scene's, measured on the photos as rendered)."""
     from mvsformerpp.io.mvsnet import read_cam, write_cam
@@ -175,7 +175,8 @@ def flat_split(out: Path, scenes: int, views: int) -> dict:
 
 
 def main() -> None:
-    from mvsformerpp.pipelines.model_quality import HELDOUT_SEED, synthetic_quality
+    from model_quality import HELDOUT_SEED, synthetic_quality  # bench/ is on the path when a bench script runs
+
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
 
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)

@@ -12,7 +12,7 @@ Synthetic: ``--scenes`` scenes of the training style on seeds no run trains on, 
 held-out style, each as whole small photos and as windows of 400-2400 px photos (``*_windows``), and
 as many rooms seen by a walking handheld camera at 640x480 (``synthetic_rooms``: indoor video, with the
 median AbsRel), the same rooms with every wall and ceiling painted one colour (``synthetic_rooms_painted``:
-large surfaces with nothing to match, as in real rooms) (see ``mvsformerpp.pipelines.model_quality``);
+large surfaces with nothing to match, as in real rooms) (see ``bench/model_quality.py``);
 real: the DTU pair with ground-truth depth (tests/data/dtu_pair) and the Middlebury temple of the demo.
 Prints one table and writes the JSON.
 """
@@ -28,8 +28,7 @@ from pathlib import Path
 
 
 def main() -> None:
-    from mvsformerpp.pipelines.demo import DEMO_CONFIG
-    from mvsformerpp.pipelines.model_quality import (
+    from model_quality import (  # bench/ is on the path when a bench script runs
         SYNTHETIC_KINDS,
         calibrate_fusion_conf,
         dtu_pair_quality,
@@ -37,6 +36,8 @@ def main() -> None:
         synthetic_quality,
         temple_quality,
     )
+
+    from mvsformerpp.pipelines.demo import DEMO_CONFIG
     from mvsformerpp.pipelines.network import run_weights
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig
     from mvsformerpp.utils.allocator import tune_allocator

@@ -120,7 +120,7 @@ def dtu_counts(draws: int, generator) -> np.ndarray:
     import torch
     from stage_losses import dtu_pair_inputs  # bench/ is on the path when a bench script runs
 
-    from mvsformerpp.pipelines.model_quality import from_coarse_grid
+    from mvsformerpp.evaluation.grids import from_coarse_grid
 
     total = np.zeros((4, 3))
     for images, Ks, Es, depth_min, depth_max, gt in dtu_pair_inputs():

@@ -154,8 +154,8 @@ def dtu_stage_scores(model):
     import numpy as np
     import torch
 
+    from mvsformerpp.evaluation.grids import from_coarse_grid
     from mvsformerpp.models.inputs import normalize, stage_projections
-    from mvsformerpp.pipelines.model_quality import from_coarse_grid
 
     counts, rel = np.zeros((3, 4)), []
     model.prepare_for_inference()

@@ -166,7 +166,7 @@ def test_fusion_threshold_calibrated_for_the_shipped_weights(monkeypatch, tmp_pa
 def test_shipped_fusion_thresholds_follow_the_calibration_rule():
     """The record's thresholds are what the calibration rule picks from the sweep stored beside them, for
     every method (a record edited by hand, or made by an older rule, fails)."""
-    from mvsformerpp.pipelines.model_quality import FUSION_BETA, pick_threshold
+    from mvsformerpp.evaluation.calibration import FUSION_BETA, pick_threshold
 
     record = shipped.shipped_record()
     calibration = record["fusion_calibration"]

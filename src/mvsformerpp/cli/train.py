@@ -3,14 +3,14 @@
 from __future__ import annotations
 
 import argparse
+from pathlib import Path
 
-from mvsformerpp.models.presets import PRESET_NAMES
+from mvsformerpp.training.config import TrainConfig
+from mvsformerpp.utils.config_flags import add_config_flags
 
-# Command-line options that set a config field directly: option dest -> field.
-_FIELDS = {"data_root": "data_root", "train_list": "train_list", "val_list": "val_list", "preset": "preset",
-           "checkpoint": "init_checkpoint", "max_steps": "max_steps", "epochs": "epochs",
-           "batch_size": "batch_size", "height": "height", "width": "width", "views": "num_views", "seed": "seed",
-           "save_every": "save_every", "device": "device", "precision": "precision"}
+FLAGS = ("data_root", "train_list", "val_list", "preset", "init_checkpoint", "max_steps", "epochs", "batch_size",
+         "height", "width", "num_views", "seed", "save_every", "device", "precision")
+"""The :class:`~mvsformerpp.training.config.TrainConfig` fields with a flag of their own (any field: ``--set``)."""
 
 
 def register(sub: argparse._SubParsersAction) -> None:
@@ -23,22 +23,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     )
     p.add_argument("config", metavar="RECIPE_OR_CONFIG", help="dtu | blended_finetune | synthetic | a YAML file")
     p.add_argument("-o", "--output", required=True, metavar="RUN_DIR", help="run folder")
-    p.add_argument("--data-root", help="data set root (DTU; BlendedMVS for blended_finetune)")
-    p.add_argument("--train-list", help="file listing the training scans/scenes")
-    p.add_argument("--val-list", help="file listing the validation scans/scenes")
-    p.add_argument("--preset", choices=PRESET_NAMES, help="network preset")
-    p.add_argument("--checkpoint", metavar="INIT", help="weights to start from")
-    p.add_argument("--max-steps", type=int, help="optimiser steps (default: epochs x batches per epoch)")
-    p.add_argument("--epochs", type=int)
-    p.add_argument("--batch-size", type=int, help="global batch size (all processes)")
-    p.add_argument("--height", type=int, help="training height (single-scale)")
-    p.add_argument("--width", type=int, help="training width (single-scale)")
-    p.add_argument("--views", type=int, help="views per sample")
-    p.add_argument("--seed", type=int)
-    p.add_argument("--save-every", type=int, metavar="N", help="write checkpoints/last.* every N steps")
-    p.add_argument("--device", choices=("auto", "cpu", "cuda"),
-                   help="auto (the default): CUDA when a CUDA device is present, else the CPU")
-    p.add_argument("--precision", choices=("fp32", "bf16", "fp16"))
+    add_config_flags(p, TrainConfig, FLAGS, default_notes=dict.fromkeys(FLAGS, "the recipe's"),
+                     **dict.fromkeys(FLAGS))
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any config field (YAML value), e.g. --set lr=1e-4 --set loss_weights=[0,0,0,1]")
@@ -49,11 +35,9 @@ def run(args: argparse.Namespace) -> int:
     from mvsformerpp.pipelines.train import run_training
     from mvsformerpp.training.config import load_config, parse_overrides
 
-    overrides = {field: getattr(args, dest) for dest, field in _FIELDS.items() if getattr(args, dest) is not None}
+    overrides = {name: getattr(args, name) for name in FLAGS if getattr(args, name) is not None}
     overrides.update(parse_overrides(args.set))
     config = load_config(args.config, overrides)
-    from pathlib import Path
-
     recipe_file = [args.config] if Path(args.config).is_file() else []
     summary = run_training(config, args.output, resume=args.resume, inputs=recipe_file)
     val = summary.get("last_validation") or {}

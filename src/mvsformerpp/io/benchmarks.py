@@ -93,31 +93,8 @@ def load_dtu_scene(
     root = Path(root)
     if not is_dtu_root(root):
         raise InputError("not a DTU training layout (expected Cameras/ and Rectified/ or Rectified_raw/)", root)
-    scans = list_dtu_scans(root)
-    if scan is None:
-        if len(scans) != 1:
-            raise InputError(f"the DTU layout holds {len(scans)} scans ({', '.join(scans[:8])}"
-                             f"{', ...' if len(scans) > 8 else ''}); choose one with scan=", root)
-        scan = scans[0]
-    scan = f"scan{scan}" if isinstance(scan, int) or str(scan).isdigit() else str(scan)
-    if scan not in scans:
-        raise InputError(f"no photos for {scan} (scans here: {', '.join(scans) or 'none'})", root)
-    train_dir = root / "Rectified" / f"{scan}_train"
-    if not train_dir.is_dir():
-        train_dir = root / "Rectified" / scan
-    raw_dir = root / "Rectified_raw" / scan
-    if resolution == "auto":
-        resolution = "train" if train_dir.is_dir() else "raw"
-    if resolution == "train":
-        image_dir = train_dir
-        cam_dir = _first_dir(root / "Cameras" / "train", root / "Cameras")
-        depth_dir = _first_dir(root / "Depths" / f"{scan}_train", root / "Depths" / scan)
-    else:
-        image_dir = raw_dir
-        cam_dir = root / "Cameras"
-        depth_dir = _first_dir(root / "Depths_raw" / scan)
-    if not image_dir.is_dir():
-        raise InputError(f"no {resolution} photos for {scan} (expected {image_dir.relative_to(root)}/)", root)
+    scan = _dtu_scan(root, scan)
+    image_dir, cam_dir, depth_dir = _dtu_folders(root, scan, resolution)
     cams = cam_files(cam_dir)
     if not cams:
         raise InputError("no NNNNNNNN_cam.txt files: the scene is empty", cam_dir)
@@ -140,6 +117,40 @@ def load_dtu_scene(
     pair = _first_file(root / "Cameras" / "pair.txt", cam_dir / "pair.txt")
     set_neighbors(views, ids, pair, num_neighbors, skipped)
     return Scene(views=views, root=root, source_format="dtu")
+
+
+def _dtu_scan(root: Path, scan: str | int | None) -> str:
+    """The scan's name (``scanN``) among the scans with photos under ``root``; the only one when None."""
+    scans = list_dtu_scans(root)
+    if scan is None:
+        if len(scans) != 1:
+            raise InputError(f"the DTU layout holds {len(scans)} scans ({', '.join(scans[:8])}"
+                             f"{', ...' if len(scans) > 8 else ''}); choose one with scan=", root)
+        scan = scans[0]
+    scan = f"scan{scan}" if isinstance(scan, int) or str(scan).isdigit() else str(scan)
+    if scan not in scans:
+        raise InputError(f"no photos for {scan} (scans here: {', '.join(scans) or 'none'})", root)
+    return scan
+
+
+def _dtu_folders(root: Path, scan: str, resolution: str) -> tuple[Path, Path, Path | None]:
+    """(photos, cams, ground-truth depths or None) of ``scan`` at ``resolution`` (see :func:`load_dtu_scene`)."""
+    train_dir = root / "Rectified" / f"{scan}_train"
+    if not train_dir.is_dir():
+        train_dir = root / "Rectified" / scan
+    if resolution == "auto":
+        resolution = "train" if train_dir.is_dir() else "raw"
+    if resolution == "train":
+        image_dir = train_dir
+        cam_dir = _first_dir(root / "Cameras" / "train", root / "Cameras")
+        depth_dir = _first_dir(root / "Depths" / f"{scan}_train", root / "Depths" / scan)
+    else:
+        image_dir = root / "Rectified_raw" / scan
+        cam_dir = root / "Cameras"
+        depth_dir = _first_dir(root / "Depths_raw" / scan)
+    if not image_dir.is_dir():
+        raise InputError(f"no {resolution} photos for {scan} (expected {image_dir.relative_to(root)}/)", root)
+    return image_dir, cam_dir, depth_dir
 
 
 # ---------------------------------------------------------------------------------------- BlendedMVS

@@ -142,22 +142,11 @@ def load_colmap_scene(
     xyz = np.stack([model.points3D[p].xyz for p in point_ids]) if len(point_ids) else np.zeros((0, 3))
     views, visibility = [], []
     for im in images:
-        cam = model.cameras[im.camera_id]
         path = image_dir / im.name
         if not path.is_file():
             raise InputError(f"photo {im.name} of the COLMAP model is missing from {image_dir}", path)
         w, h = image_size(path)
-        K = cam.K
-        if (w, h) != (cam.width, cam.height):
-            sx, sy = w / cam.width, h / cam.height
-            exact = sx == sy and (sx == round(sx) or 1 / sx == round(1 / sx))
-            if not exact:
-                raise InputError(
-                    f"photo is {w}x{h} but its COLMAP camera {cam.id} is {cam.width}x{cam.height} (not an integer "
-                    "scale factor): use the photos the model was built from", path)
-            K = K.copy()
-            K[:2] *= sx
-            log.warning("%s: photo is %gx the size of its COLMAP camera; scaled K", path, sx)
+        K = _photo_intrinsics(model.cameras[im.camera_id], w, h, path)
         R = im.R
         ids = im.point3D_ids[im.point3D_ids >= 0]
         idx = np.searchsorted(point_ids, ids)
@@ -177,6 +166,23 @@ def load_colmap_scene(
     for v, nb in zip(views, top_neighbors(scores, num_neighbors)):
         v.neighbors = [j for j, _ in nb]
     return Scene(views=views, root=Path(sparse_dir), source_format="colmap")
+
+
+def _photo_intrinsics(cam, w: int, h: int, path: Path) -> np.ndarray:
+    """K of camera ``cam`` for its w x h photo: scaled when the photo is an exact integer factor larger or
+    smaller (with a warning), else an :class:`InputError`."""
+    if (w, h) == (cam.width, cam.height):
+        return cam.K
+    sx, sy = w / cam.width, h / cam.height
+    exact = sx == sy and (sx == round(sx) or 1 / sx == round(1 / sx))
+    if not exact:
+        raise InputError(
+            f"photo is {w}x{h} but its COLMAP camera {cam.id} is {cam.width}x{cam.height} (not an integer "
+            "scale factor): use the photos the model was built from", path)
+    K = cam.K.copy()
+    K[:2] *= sx
+    log.warning("%s: photo is %gx the size of its COLMAP camera; scaled K", path, sx)
+    return K
 
 
 def undistort_colmap(project: str | Path, out_dir: str | Path, max_image_size: int = -1) -> Path:

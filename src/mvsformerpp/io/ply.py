@@ -200,30 +200,7 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
     if end < 0:
         raise FormatError("PLY header has no 'end_header' line", path)
     body_start = raw.index(b"\n", end) + 1
-    header = raw[:end].decode("ascii", errors="replace").splitlines()
-    fmt = None
-    elements: list[tuple[str, int, list[tuple[str, str | None, str]]]] = []
-    for line in header:
-        parts = line.split()
-        if not parts or parts[0] in ("comment", "obj_info", "ply"):
-            continue
-        if parts[0] == "format":
-            fmt = parts[1]
-        elif parts[0] == "element":
-            if len(parts) != 3:
-                raise FormatError(f"bad PLY element line {line.strip()!r} (expected 'element NAME COUNT')", path)
-            elements.append((parts[1], _element_count(parts[2], parts[1], path), []))
-        elif parts[0] == "property":
-            if not elements:
-                raise FormatError("PLY property before any element", path)
-            if parts[1] == "list":
-                elements[-1][2].append((parts[4], parts[2], parts[3]))
-            else:
-                if parts[1] not in _PLY_TYPES:
-                    raise FormatError(f"unknown PLY property type {parts[1]!r}", path)
-                elements[-1][2].append((parts[2], None, parts[1]))
-    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
-        raise FormatError(f"unsupported PLY format {fmt!r}", path)
+    fmt, elements = _parse_header(raw[:end].decode("ascii", errors="replace").splitlines(), path)
     vertex_idx = next((i for i, e in enumerate(elements) if e[0] == "vertex"), None)
     if vertex_idx is None:
         raise FormatError("PLY file has no 'vertex' element", path)
@@ -248,6 +225,38 @@ def read_ply(path: str | Path) -> dict[str, np.ndarray]:
             return {p[0]: arr[p[0]].astype(arr[p[0]].dtype.newbyteorder("=")) for p in props}
         offset += dt.itemsize * count
     raise FormatError("PLY vertex element could not be located", path)
+
+
+Elements = list[tuple[str, int, list[tuple[str, str | None, str]]]]
+"""A PLY header's elements: (name, count, properties (name, list count type or None, type))."""
+
+
+def _parse_header(header: list[str], path: Path) -> tuple[str, Elements]:
+    """The format and the elements of a PLY header's lines."""
+    fmt = None
+    elements: Elements = []
+    for line in header:
+        parts = line.split()
+        if not parts or parts[0] in ("comment", "obj_info", "ply"):
+            continue
+        if parts[0] == "format":
+            fmt = parts[1]
+        elif parts[0] == "element":
+            if len(parts) != 3:
+                raise FormatError(f"bad PLY element line {line.strip()!r} (expected 'element NAME COUNT')", path)
+            elements.append((parts[1], _element_count(parts[2], parts[1], path), []))
+        elif parts[0] == "property":
+            if not elements:
+                raise FormatError("PLY property before any element", path)
+            if parts[1] == "list":
+                elements[-1][2].append((parts[4], parts[2], parts[3]))
+            else:
+                if parts[1] not in _PLY_TYPES:
+                    raise FormatError(f"unknown PLY property type {parts[1]!r}", path)
+                elements[-1][2].append((parts[2], None, parts[1]))
+    if fmt not in ("ascii", "binary_little_endian", "binary_big_endian"):
+        raise FormatError(f"unsupported PLY format {fmt!r}", path)
+    return fmt, elements
 
 
 def _read_ascii(body: bytes, elements, vertex_idx: int, path: Path) -> dict[str, np.ndarray]:

@@ -57,6 +57,14 @@ def write_sfm_report(model_dir: Path, photos: list[str], path: Path, seconds: fl
     return stats
 
 
+def _bar(iterable=None, **kw):
+    """A tqdm progress bar. tqdm is imported here, not with the module: every command builds its flags from
+    :class:`SfMConfig`, and tqdm's import took a fifth of ``mvsformerpp --help`` (0.09 of 0.53 s)."""
+    from tqdm import tqdm
+
+    return tqdm(iterable, **kw)
+
+
 def _stage(progress, name: str) -> None:
     if progress is not None:
         progress.set_description(f"SfM: {name}")
@@ -112,7 +120,6 @@ MATCH_CALLS = 50
 
 def _match_all_pairs(pycolmap, database: Path, photos: list[str], pairs_file: Path, quiet: bool) -> None:
     """Exhaustive matching (every pair of photos, geometric verification) in groups of pairs, with progress."""
-    from tqdm import tqdm
 
     if any(any(c.isspace() for c in name) for name in photos):  # a pairs file splits names at whitespace
         if not quiet:
@@ -123,7 +130,7 @@ def _match_all_pairs(pycolmap, database: Path, photos: list[str], pairs_file: Pa
     size = max(1, -(-len(pairs) // MATCH_CALLS))
     options = pycolmap.ImportedPairingOptions()
     options.match_list_path = str(pairs_file)
-    with tqdm(total=len(pairs), desc="SfM: matching", unit="pair", disable=quiet) as bar:
+    with _bar(total=len(pairs), desc="SfM: matching", unit="pair", disable=quiet) as bar:
         for k in range(0, len(pairs), size):
             group = pairs[k:k + size]
             pairs_file.write_text("".join(f"{a} {b}\n" for a, b in group))
@@ -141,13 +148,9 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
     """
     config = config or SfMConfig()
     image_dir, sfm_dir = Path(image_dir), Path(sfm_dir)
-    dense = sfm_dir / "dense"
-    done = sfm_dir / "DONE"
-    options_file = sfm_dir / "options.json"
+    dense, done = sfm_dir / "dense", sfm_dir / "DONE"
     options = json.dumps(dataclasses.asdict(config), sort_keys=True)
-    same = options_file.is_file() and options_file.read_text() == options
-    if not options_file.is_file() and done.is_file():
-        same = config == SfMConfig()  # a run from before options were recorded used the defaults
+    same = _same_settings(sfm_dir, options, config)
     if done.is_file() and (dense / "sparse").is_dir() and same:
         log.info("SfM already done in %s; reusing it", sfm_dir)
         return dense
@@ -165,48 +168,76 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
         for name in ("features.done", "DONE", "database.db"):
             with contextlib.suppress(FileNotFoundError):
                 (sfm_dir / name).unlink()
-        options_file.write_text(options)
-    from tqdm import tqdm
-
+        (sfm_dir / "options.json").write_text(options)
     # COLMAP logs every step at INFO level; keep warnings and errors only (all of it when verbose).
     pycolmap.logging.minloglevel = 0 if log.isEnabledFor(logging.DEBUG) else (2 if quiet else 1)
+    if not (sfm_dir / "features.done").is_file():
+        extract_and_match(pycolmap, image_dir, photos, sfm_dir, config, quiet)
+        (sfm_dir / "features.done").touch()
+    best_dir, best = map_photos(pycolmap, image_dir, photos, sfm_dir, quiet)
+    stats = write_sfm_report(best_dir, photos, sfm_dir / "report.json", seconds=time.perf_counter() - t0)
+    log.info("SfM registered %d of %d photos", best.num_reg_images(), len(photos))
+    if not quiet and stats["dropped"]:
+        print(f"SfM: {len(stats['dropped'])} of {len(photos)} photos did not register: "
+              f"{', '.join(stats['dropped'][:8])}{' ...' if len(stats['dropped']) > 8 else ''}", flush=True)
+    if dense.exists():
+        shutil.rmtree(dense)
+    with _explained("undistorting", "check the disk space and that the photos are still there", image_dir):
+        pycolmap.undistort_images(dense, best_dir, image_dir)
+    write_sfm_report(best_dir, photos, sfm_dir / "report.json", seconds=time.perf_counter() - t0)  # undistortion too
+    done.write_text(f"registered {best.num_reg_images()} of {len(photos)} photos\n")
+    return dense
 
+
+def _same_settings(sfm_dir: Path, options: str, config: SfMConfig) -> bool:
+    """Whether the run in ``sfm_dir`` (if any) was made with these settings (``options``: their JSON)."""
+    options_file = sfm_dir / "options.json"
+    if not options_file.is_file() and (sfm_dir / "DONE").is_file():
+        return config == SfMConfig()  # a run from before options were recorded used the defaults
+    return options_file.is_file() and options_file.read_text() == options
+
+
+def extract_and_match(pycolmap, image_dir: Path, photos: list[str], sfm_dir: Path, config: SfMConfig,
+                      quiet: bool) -> Path:
+    """Stages 1 and 2: SIFT features of every photo and their verified matches, into ``sfm_dir/database.db``."""
     database = sfm_dir / "database.db"
-    features_done = sfm_dir / "features.done"
-    if not features_done.is_file():
-        # A database left by an interrupted extraction may be incomplete: start it afresh.
-        with contextlib.suppress(FileNotFoundError):
-            database.unlink()
-        opts = pycolmap.FeatureExtractionOptions()
-        opts.max_image_size = config.max_image_size
-        reader = pycolmap.ImageReaderOptions()
-        reader.camera_model = config.camera_model
-        mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.PER_IMAGE
-        with _explained("extracting features", "check that the photos are readable images", image_dir):
-            for k, name in enumerate(tqdm(photos, desc="SfM: features", unit="photo", disable=quiet)):
-                if config.single_camera and k > 0:
-                    reader.existing_camera_id = 1  # the camera the first photo created
-                pycolmap.extract_features(database, image_dir, image_names=[name], camera_mode=mode,
-                                          reader_options=reader, extraction_options=opts,
-                                          device=pycolmap.Device.cpu)
-        with _explained("matching", "try --matcher exhaustive, or photos with more overlap", image_dir):
-            if config.matcher == "sequential":
-                if not quiet:
-                    print(f"SfM: matching {len(photos)} photos (sequential)", flush=True)
-                pairing = pycolmap.SequentialPairingOptions()
-                pairing.overlap = config.overlap
-                pycolmap.match_sequential(database, pairing_options=pairing, device=pycolmap.Device.cpu)
-            else:
-                _match_all_pairs(pycolmap, database, photos, sfm_dir / "pairs.txt", quiet)
-        features_done.touch()
+    # A database left by an interrupted extraction may be incomplete: start it afresh.
+    with contextlib.suppress(FileNotFoundError):
+        database.unlink()
+    opts = pycolmap.FeatureExtractionOptions()
+    opts.max_image_size = config.max_image_size
+    reader = pycolmap.ImageReaderOptions()
+    reader.camera_model = config.camera_model
+    mode = pycolmap.CameraMode.SINGLE if config.single_camera else pycolmap.CameraMode.PER_IMAGE
+    with _explained("extracting features", "check that the photos are readable images", image_dir):
+        for k, name in enumerate(_bar(photos, desc="SfM: features", unit="photo", disable=quiet)):
+            if config.single_camera and k > 0:
+                reader.existing_camera_id = 1  # the camera the first photo created
+            pycolmap.extract_features(database, image_dir, image_names=[name], camera_mode=mode,
+                                      reader_options=reader, extraction_options=opts, device=pycolmap.Device.cpu)
+    with _explained("matching", "try --matcher exhaustive, or photos with more overlap", image_dir):
+        if config.matcher == "sequential":
+            if not quiet:
+                print(f"SfM: matching {len(photos)} photos (sequential)", flush=True)
+            pairing = pycolmap.SequentialPairingOptions()
+            pairing.overlap = config.overlap
+            pycolmap.match_sequential(database, pairing_options=pairing, device=pycolmap.Device.cpu)
+        else:
+            _match_all_pairs(pycolmap, database, photos, sfm_dir / "pairs.txt", quiet)
+    return database
 
+
+def map_photos(pycolmap, image_dir: Path, photos: list[str], sfm_dir: Path, quiet: bool):
+    """Stage 3: incremental mapping; the model with the most registered photos, written to ``sfm_dir/model``.
+    Returns (that folder, the model)."""
     sparse = sfm_dir / "sparse"
     if sparse.exists():
         shutil.rmtree(sparse)  # an incomplete mapping from an interrupted run
     sparse.mkdir()
-    with (tqdm(total=len(photos), desc="SfM: registered", unit="photo", disable=quiet) as bar,
+    with (_bar(total=len(photos), desc="SfM: registered", unit="photo", disable=quiet) as bar,
           _explained("mapping", "take more overlapping, textured photos, or try --single-camera", image_dir)):
-        models = pycolmap.incremental_mapping(database, image_dir, sparse, next_image_callback=lambda: bar.update(1))
+        models = pycolmap.incremental_mapping(sfm_dir / "database.db", image_dir, sparse,
+                                              next_image_callback=lambda: bar.update(1))
         if models:  # the callback counts the images added after the first pair: show the count of the model
             bar.n = max(m.num_reg_images() for m in models.values())
             bar.refresh()
@@ -216,8 +247,7 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
             "little texture; take more overlapping photos",
             image_dir,
         )
-    best_id = max(models, key=lambda k: models[k].num_reg_images())
-    best = models[best_id]
+    best = models[max(models, key=lambda k: models[k].num_reg_images())]
     if best.num_reg_images() < 2:
         raise InputError("structure-from-motion registered fewer than 2 photos; add overlapping photos", image_dir)
     best_dir = sfm_dir / "model"
@@ -225,16 +255,4 @@ def run_sfm(image_dir: str | Path, sfm_dir: str | Path, quiet: bool = False,
         shutil.rmtree(best_dir)
     best_dir.mkdir()
     best.write(best_dir)
-    stats = write_sfm_report(best_dir, photos, sfm_dir / "report.json", seconds=time.perf_counter() - t0)
-    log.info("SfM registered %d of %d photos", best.num_reg_images(), len(photos))
-    if not quiet and stats["dropped"]:
-        print(f"SfM: {len(stats['dropped'])} of {len(photos)} photos did not register: "
-              f"{', '.join(stats['dropped'][:8])}{' ...' if len(stats['dropped']) > 8 else ''}", flush=True)
-
-    if dense.exists():
-        shutil.rmtree(dense)
-    with _explained("undistorting", "check the disk space and that the photos are still there", image_dir):
-        pycolmap.undistort_images(dense, best_dir, image_dir)
-    write_sfm_report(best_dir, photos, sfm_dir / "report.json", seconds=time.perf_counter() - t0)  # undistortion too
-    done.write_text(f"registered {best.num_reg_images()} of {len(photos)} photos\n")
-    return dense
+    return best_dir, best

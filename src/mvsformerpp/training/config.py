@@ -19,6 +19,7 @@ import yaml
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.models.presets import PRESET_NAMES
+from mvsformerpp.utils.config_flags import plain_value
 
 
 @dataclass(frozen=True)
@@ -45,12 +46,12 @@ class TrainConfig:
     # ---- network
     preset: Literal[PRESET_NAMES] = "lite"
     """Network preset (:data:`mvsformerpp.models.presets.PRESETS`)."""
-    init_checkpoint: str | None = None
+    init_checkpoint: str | None = field(default=None, metadata={"flag": "--checkpoint", "metavar": "INIT"})
     """Weights to start from (a safetensors checkpoint, an official .pth, or DINOv2 backbone weights)."""
     xavier_init: bool = True
     """Xavier-uniform init of the FMT's linear layers when training from scratch (the official FMT init)."""
     # ---- samples
-    num_views: int = 5
+    num_views: int = field(default=5, metadata={"flag": "--views", "metavar": "N"})
     """Views per sample: the reference and num_views - 1 sources."""
     num_depth: int = 192
     """Depth samples of the range; only its ends reach the network (stage 1 is inverse-uniform)."""
@@ -177,7 +178,7 @@ class TrainConfig:
     """Validation metric that chooses ``best.safetensors`` (lower is better)."""
     log_every: int = 10
     """Write a metrics row every this many steps."""
-    save_every: int = 500
+    save_every: int = field(default=500, metadata={"metavar": "N"})
     """Write ``checkpoints/last.*`` every this many steps (and at the end)."""
     tensorboard: bool = True
     """TensorBoard events in RUN_DIR/tb (needs the ``train`` extra)."""
@@ -197,7 +198,8 @@ class TrainConfig:
         if unknown:
             raise InputError(f"unknown training config keys {unknown}; known keys: {sorted(known)}")
         hints = typing.get_type_hints(cls)
-        return dataclasses.replace(base, **{k: _convert(k, v, hints[k]) for k, v in d.items()})
+        return dataclasses.replace(base, **{k: plain_value(v, hints[k], f"training config field {k!r}")
+                                            for k, v in d.items()})
 
 
 # Fields that may change when a run resumes: they do not touch the training trajectory.
@@ -250,63 +252,6 @@ def _plain(x):
     return x
 
 
-def _convert(name: str, value, hint):
-    """Coerce a YAML value to the field's type (tuples from lists, floats from ints), or say why not."""
-    origin, args = typing.get_origin(hint), typing.get_args(hint)
-    if value is None:
-        if type(None) in args:
-            return None
-        raise InputError(f"training config field {name!r} cannot be null")
-    if origin in (typing.Union, getattr(__import__("types"), "UnionType", None)):
-        errors = []
-        for a in args:
-            if a is type(None):
-                continue
-            try:
-                return _convert(name, value, a)
-            except InputError as e:
-                errors.append(str(e))
-        raise InputError(errors[0])
-    if origin is Literal:
-        if value not in args:
-            raise InputError(f"training config field {name!r} must be one of {list(args)}, got {value!r}")
-        return value
-    if origin is tuple:
-        if not isinstance(value, (list, tuple)):
-            raise InputError(f"training config field {name!r} needs a list, got {value!r}")
-        if len(args) == 2 and args[1] is Ellipsis:
-            return tuple(_convert(name, v, args[0]) for v in value)
-        if len(value) != len(args):
-            raise InputError(f"training config field {name!r} needs {len(args)} values, got {value!r}")
-        return tuple(_convert(name, v, a) for v, a in zip(value, args))
-    if hint is dict or origin is dict:
-        if not isinstance(value, dict):
-            raise InputError(f"training config field {name!r} needs a mapping, got {value!r}")
-        return dict(value)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise InputError(f"training config field {name!r} needs true/false, got {value!r}")
-        return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"training config field {name!r} needs an integer, got {value!r}")
-        return value
-    if hint is float:
-        if isinstance(value, str):  # YAML 1.1 reads 1e-4 (no dot) as a string
-            try:
-                return float(value)
-            except ValueError:
-                pass
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"training config field {name!r} needs a number, got {value!r}")
-        return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise InputError(f"training config field {name!r} needs a string, got {value!r}")
-        return value
-    return value
-
-
 def parse_overrides(items: list[str]) -> dict:
     """``["key=value", ...]`` (values in YAML: ``lr=1e-4``, ``loss_weights=[0,0,0,1]``) -> dict."""
     out = {}
@@ -352,6 +297,28 @@ MAX_WORKERS = 256
 
 def check_config(config: TrainConfig) -> TrainConfig:
     """Reject values the run cannot use, with the field and the fix; returns ``config``."""
+    _check_shape(config)
+    for name, low, high, low_open in _NUMBERS:
+        _check_number(config, name, low, high, low_open)
+    if config.recipe == "synthetic":
+        _check_synthetic(config)
+    _check_options(config)
+    if config.recipe == "synthetic":
+        # (imported here: the command line reads this module for its flags without torch, which the data needs)
+        from mvsformerpp.data.synthetic import resolve_source
+
+        resolve_source(config.synthetic_source)
+    if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
+        raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
+    if config.min_overlap is not None and not 0 <= config.min_overlap <= 1:
+        raise InputError(f"min_overlap {config.min_overlap} must be a share between 0 and 1")
+    if config.parallax_samples < 1:
+        raise InputError(f"parallax_samples must be at least 1, got {config.parallax_samples}")
+    return config
+
+
+def _check_shape(config: TrainConfig) -> None:
+    """Training sizes, depth planes, views, batches and step counts."""
     sizes = [("height/width", (config.height, config.width))] + [("resolutions", r) for r in config.resolutions]
     if config.val_height or config.val_width:
         sizes.append(("val_height/val_width", (config.val_height or config.height, config.val_width or config.width)))
@@ -368,39 +335,46 @@ def check_config(config: TrainConfig) -> TrainConfig:
         raise InputError("batch_size must be >= 1 and max_steps/epochs >= 0")
     if config.save_every < 1 or config.log_every < 1:
         raise InputError("save_every and log_every must be >= 1")
-    def number(name: str, low: float, high: float = math.inf, low_open: bool = False) -> None:
-        value = getattr(config, name)
-        if value is None:
-            return
-        ok = math.isfinite(value) and (value > low if low_open else value >= low) and value <= high
-        if not ok:
-            bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if math.isfinite(high) else "")
-            raise InputError(f"{name} must be a finite number {bound}, got {value!r} (--set {name}=...)")
 
-    number("lr", 0.0, low_open=True)
-    number("min_lr_ratio", 0.0, 1.0)
-    number("weight_decay", 0.0)
-    number("grad_clip", 0.0, low_open=True)
-    number("interval_scale", 0.0, low_open=True)
-    number("resize_min_scale", 0.0, 1.0, low_open=True)
-    number("synthetic_render_scale", 1.0, 4.0)
-    number("window_guide", 0.0, 1.0)
-    if config.recipe == "synthetic" and (max(config.synthetic_train_scenes, config.synthetic_val_scenes)
-                                         > MAX_SYNTHETIC_SCENES or config.synthetic_views_per_scene > MAX_SCENE_VIEWS):
+
+_NUMBERS = (("lr", 0.0, math.inf, True), ("min_lr_ratio", 0.0, 1.0, False), ("weight_decay", 0.0, math.inf, False),
+            ("grad_clip", 0.0, math.inf, True), ("interval_scale", 0.0, math.inf, True),
+            ("resize_min_scale", 0.0, 1.0, True), ("synthetic_render_scale", 1.0, 4.0, False),
+            ("window_guide", 0.0, 1.0, False))
+"""(field, low, high, low excluded) of the real-valued fields (None: unset, not checked)."""
+
+
+def _check_number(config: TrainConfig, name: str, low: float, high: float, low_open: bool) -> None:
+    value = getattr(config, name)
+    if value is None:
+        return
+    ok = math.isfinite(value) and (value > low if low_open else value >= low) and value <= high
+    if not ok:
+        bound = f"{'>' if low_open else '>='} {low:g}" + (f" and <= {high:g}" if math.isfinite(high) else "")
+        raise InputError(f"{name} must be a finite number {bound}, got {value!r} (--set {name}=...)")
+
+
+def _check_synthetic(config: TrainConfig) -> None:
+    """The synthetic recipe's scene counts and scene batches."""
+    if (max(config.synthetic_train_scenes, config.synthetic_val_scenes) > MAX_SYNTHETIC_SCENES
+            or config.synthetic_views_per_scene > MAX_SCENE_VIEWS):
         raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be at most {MAX_SYNTHETIC_SCENES:,} "
                          f"(every epoch orders all their samples) and synthetic_views_per_scene at most "
                          f"{MAX_SCENE_VIEWS} (each scene lays out its cameras), got {config.synthetic_train_scenes:,}, "
                          f"{config.synthetic_val_scenes:,} and {config.synthetic_views_per_scene:,}")
-    if config.recipe == "synthetic" and (config.synthetic_train_scenes < 1 or config.synthetic_val_scenes < 1
-                                         or config.synthetic_views_per_scene < config.num_views):
+    if (config.synthetic_train_scenes < 1 or config.synthetic_val_scenes < 1
+            or config.synthetic_views_per_scene < config.num_views):
         raise InputError(f"synthetic_train_scenes and synthetic_val_scenes must be >= 1 and synthetic_views_per_scene "
                          f">= num_views ({config.num_views}), got {config.synthetic_train_scenes}, "
                          f"{config.synthetic_val_scenes} and {config.synthetic_views_per_scene}")
-    if config.recipe == "synthetic" and config.synthetic_scene_batches and (
-            config.batch_size % config.synthetic_views_per_scene):
+    if config.synthetic_scene_batches and config.batch_size % config.synthetic_views_per_scene:
         raise InputError(f"synthetic_scene_batches puts each scene's {config.synthetic_views_per_scene} views "
                          f"(synthetic_views_per_scene) into one batch: batch_size must be a multiple of it, got "
                          f"{config.batch_size} (--batch-size, or --set synthetic_views_per_scene=...)")
+
+
+def _check_options(config: TrainConfig) -> None:
+    """Counts, optimiser settings, loss weights, stages and stage 1's placement options."""
     if config.num_workers > MAX_WORKERS:
         raise InputError(f"num_workers must be at most {MAX_WORKERS} (each is a process rendering samples), got "
                          f"{config.num_workers:,} (--set num_workers=...)")
@@ -419,17 +393,6 @@ def check_config(config: TrainConfig) -> TrainConfig:
     if config.cvt_random_placement and config.cvt_train_shifts:
         raise InputError("cvt_random_placement and cvt_train_shifts each choose where stage 1's token grid lies in "
                          "training: set at most one of them true")
-    if config.recipe == "synthetic":
-        from mvsformerpp.data.synthetic import resolve_source
-
-        resolve_source(config.synthetic_source)
-    if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
-        raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
-    if config.min_overlap is not None and not 0 <= config.min_overlap <= 1:
-        raise InputError(f"min_overlap {config.min_overlap} must be a share between 0 and 1")
-    if config.parallax_samples < 1:
-        raise InputError(f"parallax_samples must be at least 1, got {config.parallax_samples}")
-    return config
 
 
 def dump_config(config: TrainConfig) -> str:

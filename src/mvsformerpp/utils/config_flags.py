@@ -1,4 +1,5 @@
-"""Command-line flags derived from a frozen config dataclass: each setting is defined once, as a field.
+"""Command-line flags derived from a frozen config dataclass: each setting is defined once, as a field;
+and field values read from plain data (YAML, ``--set``) by the same types.
 
 A field's flag comes from its type (``Literal`` -> choices, ``bool`` -> a switch, ``tuple[float, float]`` ->
 two values, ``X | None`` -> optional), its default and its docstring (the help text, markup removed);
@@ -20,6 +21,8 @@ import textwrap
 import types
 import typing
 from typing import Any, Literal
+
+from mvsformerpp.errors import InputError
 
 
 @functools.cache
@@ -149,3 +152,62 @@ def config_from_args(cls: type, args: argparse.Namespace, **fixed: Any):
             value = getattr(args, name)
             values[name] = tuple(value) if isinstance(value, list) else value
     return cls(**values)
+
+
+def plain_value(value: Any, hint: Any, what: str) -> Any:
+    """``value`` read from plain data (YAML, JSON, ``--set``) as a field of type ``hint``: tuples from lists,
+    floats from ints; an :class:`~mvsformerpp.errors.InputError` naming ``what`` (e.g. "training config
+    field 'lr'") when it is not one."""
+    origin, args = typing.get_origin(hint), typing.get_args(hint)
+    if value is None:
+        if type(None) in args:
+            return None
+        raise InputError(f"{what} cannot be null")
+    if origin in (typing.Union, types.UnionType):
+        errors = []
+        for a in args:
+            if a is type(None):
+                continue
+            try:
+                return plain_value(value, a, what)
+            except InputError as e:
+                errors.append(str(e))
+        raise InputError(errors[0])
+    if origin is Literal:
+        if value not in args:
+            raise InputError(f"{what} must be one of {list(args)}, got {value!r}")
+        return value
+    if origin is tuple:
+        if not isinstance(value, (list, tuple)):
+            raise InputError(f"{what} needs a list, got {value!r}")
+        if len(args) == 2 and args[1] is Ellipsis:
+            return tuple(plain_value(v, args[0], what) for v in value)
+        if len(value) != len(args):
+            raise InputError(f"{what} needs {len(args)} values, got {value!r}")
+        return tuple(plain_value(v, a, what) for v, a in zip(value, args))
+    if hint is dict or origin is dict:
+        if not isinstance(value, dict):
+            raise InputError(f"{what} needs a mapping, got {value!r}")
+        return dict(value)
+    if hint is bool:
+        if not isinstance(value, bool):
+            raise InputError(f"{what} needs true/false, got {value!r}")
+        return value
+    if hint is int:
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise InputError(f"{what} needs an integer, got {value!r}")
+        return value
+    if hint is float:
+        if isinstance(value, str):  # YAML 1.1 reads 1e-4 (no dot) as a string
+            try:
+                return float(value)
+            except ValueError:
+                pass
+        if isinstance(value, bool) or not isinstance(value, (int, float)):
+            raise InputError(f"{what} needs a number, got {value!r}")
+        return float(value)
+    if hint is str:
+        if not isinstance(value, str):
+            raise InputError(f"{what} needs a string, got {value!r}")
+        return value
+    return value

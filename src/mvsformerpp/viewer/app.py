@@ -16,9 +16,16 @@ from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
+from PIL import Image, ImageDraw
 
 from mvsformerpp.errors import InputError, MissingDependencyError
+from mvsformerpp.geometry.resize import fit_long_side
+from mvsformerpp.io.colmap_model import rotmat_to_qvec
+from mvsformerpp.io.mvsnet import load_mvsnet_scene
 from mvsformerpp.io.output_folder import RunFolder, ViewFiles, open_run
+from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
+from mvsformerpp.utils.colormap import depth_scale, kept_pixels, turbo
+from mvsformerpp.viewer.report import depth_thumbnail, fusion_threshold, map_thumbnail
 
 
 @dataclass(frozen=True)
@@ -85,7 +92,6 @@ def _import_viser():
 
 def load_cloud(path: Path, max_points: int, seed: int = 0) -> Cloud:
     """Read a fused PLY, keeping a random subset of at most ``max_points`` points."""
-    from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
 
     vertex = read_ply(path)
     xyz = ply_points(vertex, path).astype(np.float32)
@@ -105,19 +111,12 @@ def _status(cameras: int, shown: int, total: int) -> str:
 
 
 def _thumb(rgb: np.ndarray, side: int) -> np.ndarray:
-    from PIL import Image
-
     h, w = rgb.shape[:2]
-    s = min(1.0, side / max(h, w))
-    return np.asarray(Image.fromarray(rgb).resize((max(1, round(w * s)), max(1, round(h * s))), Image.BILINEAR))
+    return np.asarray(Image.fromarray(rgb).resize(fit_long_side(w, h, side), Image.BILINEAR))
 
 
 def with_colorbar(rgb: np.ndarray, lo: float, hi: float) -> np.ndarray:
     """``rgb`` with the colour scale below it: a gradient strip and its end values."""
-    from PIL import Image, ImageDraw
-
-    from mvsformerpp.utils.colormap import turbo
-
     w = rgb.shape[1]
     bar = np.repeat(turbo(np.linspace(0.0, 1.0, w))[None], 10, axis=0)
     labels = Image.new("RGB", (w, 14), (255, 255, 255))
@@ -132,9 +131,6 @@ def view_panels(view: ViewFiles, side: int, threshold: float | None = None) -> d
     """Photo, depth and confidence images of one view for the panel (missing ones left out). The depth is
     shown as fusion sees it (pixels at or below the confidence ``threshold`` grey, no depth hatched), with
     its colour bar; the confidence with its own on [0, 1]."""
-    from mvsformerpp.utils.colormap import depth_scale, kept_pixels
-    from mvsformerpp.viewer.report import depth_thumbnail, map_thumbnail
-
     panels = {}
     image = view.read_image()
     if image is not None:
@@ -175,9 +171,6 @@ def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> V
     """Load an output folder and serve it; returns at once (the server runs in background threads)."""
     check_host(config.host)  # first: a wrong address fails at once, whatever else is missing
     viser = _import_viser()
-    from mvsformerpp.io.colmap_model import rotmat_to_qvec
-    from mvsformerpp.io.mvsnet import load_mvsnet_scene
-
     run = open_run(folder)
     ply = run.cloud
     if ply is None:
@@ -189,7 +182,25 @@ def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> V
     port = server.get_port()
     host = "localhost" if config.host in ("0.0.0.0", "::", "127.0.0.1") else config.host
     viewer = Viewer(server, f"http://{host}:{port}", port, run, cloud)
+    extent = _place_camera(server, cloud, scene)
+    viewer.handles["cloud"] = server.scene.add_point_cloud(
+        "/cloud", points=cloud.xyz, colors=cloud.rgb, point_size=extent / 1500, point_shape="rounded")
+    viewer.handles["status"] = server.gui.add_markdown(_status(len(scene.views), len(cloud.xyz), cloud.total))
+    threshold = server.gui.add_slider("min confidence", min=0.0, max=1.0, step=0.01, initial_value=0.0,
+                                      disabled=cloud.confidence is None)
+    if cloud.confidence is None:
+        server.gui.add_markdown("_This cloud has no per-point confidence: run `mvsformerpp fuse OUT` again._")
+    threshold.on_update(lambda _: viewer.set_threshold(threshold.value))
+    viewer.handles["threshold"] = threshold
+    chooser = _add_view_panels(server, viewer, run, config)
+    near = [v.depth_min for v in scene.views if v.depth_min]
+    _add_cameras(server, scene, run, chooser, 0.08 * float(np.median(near)) if near else 0.03 * extent)
+    return viewer
 
+
+def _place_camera(server, cloud: Cloud, scene) -> float:
+    """The scene's up direction and the opening camera: behind and above the cameras, looking at the middle
+    of the cloud. Returns the cloud's extent (scene units)."""
     centres = np.stack([v.center for v in scene.views])
     lo, hi = (np.percentile(cloud.xyz, [1, 99], axis=0) if len(cloud.xyz) else (centres.min(0), centres.max(0)))
     extent = float(np.linalg.norm(hi - lo)) or 1.0
@@ -197,29 +208,16 @@ def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> V
     up = -np.mean([v.R[1] for v in scene.views], axis=0)  # the photos' up (cameras look along +z, y down)
     up /= np.linalg.norm(up) or 1.0
     rig = centres.mean(0)
-    # start behind and above the cameras, looking at the middle of the cloud
     server.initial_camera.position = tuple(rig + 0.5 * (rig - target) + 0.25 * extent * up)
     server.initial_camera.look_at = tuple(target)
     server.initial_camera.up = tuple(up)
     server.scene.set_up_direction(tuple(up))
-    viewer.handles["cloud"] = server.scene.add_point_cloud(
-        "/cloud", points=cloud.xyz, colors=cloud.rgb, point_size=extent / 1500, point_shape="rounded")
+    return extent
 
-    near = [v.depth_min for v in scene.views if v.depth_min]
-    size = 0.08 * float(np.median(near)) if near else 0.03 * extent
-    names = [v.name for v in run.views]
-    status = server.gui.add_markdown(_status(len(scene.views), len(cloud.xyz), cloud.total))
-    viewer.handles["status"] = status
-    threshold = server.gui.add_slider("min confidence", min=0.0, max=1.0, step=0.01, initial_value=0.0,
-                                      disabled=cloud.confidence is None)
-    if cloud.confidence is None:
-        server.gui.add_markdown("_This cloud has no per-point confidence: run `mvsformerpp fuse OUT` again._")
-    threshold.on_update(lambda _: viewer.set_threshold(threshold.value))
-    viewer.handles["threshold"] = threshold
 
+def _add_view_panels(server, viewer: Viewer, run: RunFolder, config: ViewerConfig):
+    """The view chooser and the chosen view's photo, depth and confidence panels; returns the chooser."""
     chooser = server.gui.add_dropdown("view", options=tuple(f"{v.stem} {v.name}" for v in run.views))
-    from mvsformerpp.viewer.report import fusion_threshold
-
     fusion_conf = fusion_threshold(run)
     first = view_panels(run.views[0], config.thumbnail, fusion_conf)
     images = {kind: server.gui.add_image(first[kind], label=kind) for kind in ("photo", "depth", "confidence")
@@ -232,7 +230,12 @@ def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> V
             if kind in images:
                 images[kind].image = img
     chooser.on_update(show_view)
+    return chooser
 
+
+def _add_cameras(server, scene, run: RunFolder, chooser, size: float) -> None:
+    """Each camera as a frustum of ``size`` with its photo; a click on one chooses its view."""
+    names = [v.name for v in run.views]
     for i, (view, files) in enumerate(zip(scene.views, run.views)):
         photo = files.read_image()
         frustum = server.scene.add_camera_frustum(
@@ -243,7 +246,6 @@ def start_viewer(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> V
         def select(_, label=f"{files.stem} {names[i]}") -> None:
             chooser.value = label
         frustum.on_click(select)
-    return viewer
 
 
 def serve(folder: str | Path, config: ViewerConfig = ViewerConfig()) -> None:

@@ -19,6 +19,9 @@ from typing import Any
 
 import numpy as np
 
+from mvsformerpp.errors import MVSFormerError
+from mvsformerpp.fusion.choice import choose_fusion
+from mvsformerpp.geometry.resize import fit_long_side
 from mvsformerpp.io.output_folder import DEPTH_VIS, REPORT, RunFolder, ViewFiles, depth_range_of, open_run
 from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.colormap import colorize, depth_colors, depth_scale, kept_pixels, turbo
@@ -33,9 +36,9 @@ _HATCH = (np.array([150, 150, 150], np.uint8), np.array([215, 215, 215], np.uint
 # ---------------------------------------------------------------------------------------------- images
 
 
-def _thumb_size(h: int, w: int, side: int = THUMB_SIDE) -> tuple[int, int]:
-    s = min(1.0, side / max(h, w))
-    return max(1, round(w * s)), max(1, round(h * s))
+def _thumb_size(h: int, w: int) -> tuple[int, int]:
+    """(width, height) of the thumbnail of an h x w map."""
+    return fit_long_side(w, h, THUMB_SIDE)
 
 
 def _data_uri(rgb: np.ndarray, fmt: str = "PNG") -> str:
@@ -106,16 +109,12 @@ def fusion_threshold(run: RunFolder) -> float | None:
     name = cfg.get("fusion")
     if not name or name == "none":
         return None
-    resolved = run.config.get("resolved", {}).get("fusion_conf")  # --conf, or calibrated for the weights
-    if resolved is not None:
-        return float(resolved)
-    if cfg.get("fusion_conf") is not None:  # --conf overrides the preset's threshold
-        return float(cfg["fusion_conf"])
-    from mvsformerpp.fusion import get_config
-
+    chosen = run.config.get("resolved", {}).get("fusion_conf")  # --conf, or calibrated for the weights
+    if chosen is None:
+        chosen = cfg.get("fusion_conf")  # (a run from before the resolved value was recorded)
     try:
-        return get_config(name).conf_threshold
-    except ValueError:
+        return choose_fusion(name, conf=None if chosen is None else float(chosen)).settings.conf_threshold
+    except (ValueError, MVSFormerError):  # a preset or threshold this version does not know
         return None
 
 

@@ -20,13 +20,29 @@ from __future__ import annotations
 
 import dataclasses
 import shutil
+import tempfile
 from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+from scipy.ndimage import binary_dilation
 
+from mvsformerpp.evaluation.calibration import FUSION_BETA, pick_threshold
+from mvsformerpp.evaluation.cloud import cloud_distances, evaluate_clouds, f_score
+from mvsformerpp.evaluation.depth import grid_artifact_ratio
+from mvsformerpp.evaluation.grids import on_coarse_grid
+from mvsformerpp.fusion import get_config
 from mvsformerpp.fusion.config import METHODS
+from mvsformerpp.io.images import read_image
+from mvsformerpp.io.middlebury import find_par_file, read_bounding_box, read_par
+from mvsformerpp.io.mvsnet import read_cam
+from mvsformerpp.io.output_folder import open_run
+from mvsformerpp.io.pfm import read_pfm
+from mvsformerpp.io.ply import ply_points, read_ply
+from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
+from mvsformerpp.pipelines.fuse import fuse
 from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
+from mvsformerpp.synth import generate_scene
 
 HELDOUT_SEED = 5_000_000
 """First scene seed of the held-out synthetic evaluation (far from every training and validation seed)."""
@@ -40,11 +56,6 @@ SYNTHETIC_KINDS = (("train", None), ("heldout", None), ("train", WINDOWS), ("hel
 :func:`calibrate_fusion_conf` fuses; :func:`kind_name` names them."""
 CONF_GRID = tuple(round(0.05 * k, 2) for k in range(1, 15))
 """Confidence thresholds tried by :func:`calibrate_fusion_conf` (0.05 .. 0.7)."""
-F_SCORE_TIE = 0.01
-"""Relative F_beta difference under which two thresholds count as equally good."""
-FUSION_BETA = 0.5
-"""The calibration scores clouds by F_beta with this beta: precision counts twice as much as recall, since
-a floating point spoils a real cloud more than a missing one (the synthetic scenes are cleaner than photos)."""
 DARK = 20
 """Temple photos: pixels whose brightest channel is at most this (of 255) are background."""
 
@@ -76,74 +87,85 @@ def synthetic_quality(out_dir: str | Path, config: ReconstructConfig, style: str
 
     Also the confidence calibration: for each bin of :data:`CONF_BINS`, its share of the valid pixels and
     the share of those within 1 % of the depth range (a confidence that means something rises with it)."""
-    from mvsformerpp.evaluation.cloud import cloud_distances
-    from mvsformerpp.io.mvsnet import read_cam
-    from mvsformerpp.io.pfm import read_pfm
-    from mvsformerpp.io.ply import ply_points, read_ply
-    from mvsformerpp.synth import generate_scene
-
     out = Path(out_dir)
-    within = within10 = total = 0
-    acc, comp, per_scene, all_rel = [], [], [], []
-    bins = len(CONF_BINS) - 1
-    bin_pixels, bin_within = np.zeros(bins, np.int64), np.zeros(bins, np.int64)
+    cfg = dataclasses.replace(config, max_size=max_size or max(height, width), output_resolution="original",
+                              num_views=min(config.num_views, num_views))
+    tally, rows = _DepthTally(), []
     for k in range(scenes):
         scene_dir = generate_scene(out / f"scene_{k}", seed=seed + k, num_views=num_views, height=height,
                                    width=width, style=style, sensor_width=sensor_width, layout=layout,
                                    plain_walls=plain_walls)
         if prepare is not None:
             prepare(scene_dir)
-        rec = out / f"recon_{k}"
-        cfg = dataclasses.replace(config, max_size=max_size or max(height, width), output_resolution="original",
-                                  num_views=min(config.num_views, num_views))
-        reconstruct(scene_dir, rec, cfg, quiet=quiet)
-        s_within = s_within10 = s_total = 0
-        depths, rel = [], []
-        for i in range(num_views):
-            gt = read_pfm(scene_dir / "depth_gt" / f"{i:08d}.pfm")
-            est = read_pfm(rec / "depth_est" / f"{i:08d}.pfm")
-            cam = read_cam(scene_dir / "cams" / f"{i:08d}_cam.txt")
-            valid = gt > 0
-            tol = 0.01 * (cam.depth_max - cam.depth_min)
-            err = np.abs(est[valid] - gt[valid])
-            close = err < tol
-            conf = read_pfm(rec / "confidence" / f"{i:08d}.pfm")[valid]
-            which = np.clip(np.digitize(conf, CONF_BINS[1:-1]), 0, bins - 1)
-            bin_pixels += np.bincount(which, minlength=bins)
-            bin_within += np.bincount(which, weights=close, minlength=bins).astype(np.int64)
-            s_within += int(close.sum())
-            s_within10 += int((err < 0.1 * gt[valid]).sum())
-            s_total += int(valid.sum())
-            depths.append(gt[valid])
-            rel.append(err / gt[valid])
-        mean_depth = float(np.concatenate(depths).mean())
-        rel = np.concatenate(rel)
-        all_rel.append(rel)
-        pred = ply_points(read_ply(rec / "fused.ply")).astype(np.float64)
-        gt_pts = ply_points(read_ply(scene_dir / "gt_surface.ply")).astype(np.float64)
-        row = {"seed": seed + k, "within_1pct": s_within / s_total, "within_10pct_depth": s_within10 / s_total,
-               "median_abs_rel": float(np.median(rel)), "points": int(len(pred))}
-        if len(pred):
-            d = cloud_distances(pred, gt_pts)
-            row["accuracy_pct"] = 100 * float(d.pred_to_gt.mean()) / mean_depth
-            row["completeness_pct"] = 100 * float(d.gt_to_pred.mean()) / mean_depth
-            acc.append(row["accuracy_pct"])
-            comp.append(row["completeness_pct"])
-        per_scene.append(row)
-        within += s_within
-        within10 += s_within10
-        total += s_total
-    calibration = [{"conf": [CONF_BINS[b], CONF_BINS[b + 1]], "share": float(bin_pixels[b] / total),
-                    "within_1pct": float(bin_within[b] / bin_pixels[b]) if bin_pixels[b] else None}
-                   for b in range(bins)]
+        reconstruct(scene_dir, out / f"recon_{k}", cfg, quiet=quiet)
+        rows.append({"seed": seed + k, **_scene_quality(scene_dir, out / f"recon_{k}", tally)})
+    acc = [r["accuracy_pct"] for r in rows if "accuracy_pct" in r]
+    comp = [r["completeness_pct"] for r in rows if "completeness_pct" in r]
     return {"style": style, "scenes": scenes, "first_seed": seed, "size": [height, width], "views": num_views,
             "sensor_width": None if sensor_width is None else list(sensor_width),
-            "layout": layout, "plain_walls": plain_walls, "within_1pct": within / total,
-            "within_10pct_depth": within10 / total,
-            "median_abs_rel": float(np.median(np.concatenate(all_rel))), "confidence_calibration": calibration,
+            "layout": layout, "plain_walls": plain_walls, **tally.shares(),
             "accuracy_pct": float(np.mean(acc)) if acc else None,
             "completeness_pct": float(np.mean(comp)) if comp else None,
-            "per_scene": per_scene}
+            "per_scene": rows}
+
+
+class _DepthTally:
+    """Depth errors of all scenes of :func:`synthetic_quality`: pixels within 1 % of the range and 10 % of
+    the depth, relative errors, and the confidence bins' counts."""
+
+    def __init__(self):
+        bins = len(CONF_BINS) - 1
+        self.within = self.within10 = self.total = 0
+        self.rel: list[np.ndarray] = []
+        self.bin_pixels, self.bin_within = np.zeros(bins, np.int64), np.zeros(bins, np.int64)
+
+    def add(self, err: np.ndarray, gt: np.ndarray, conf: np.ndarray, tol: float) -> tuple[int, int]:
+        """One view's errors ``err`` at its valid pixels (truth ``gt``, confidence ``conf``) with the range
+        tolerance ``tol``; returns (within 1 % of the range, within 10 % of the depth)."""
+        bins = len(CONF_BINS) - 1
+        close = err < tol
+        which = np.clip(np.digitize(conf, CONF_BINS[1:-1]), 0, bins - 1)
+        self.bin_pixels += np.bincount(which, minlength=bins)
+        self.bin_within += np.bincount(which, weights=close, minlength=bins).astype(np.int64)
+        counts = int(close.sum()), int((err < 0.1 * gt).sum())
+        self.within, self.within10, self.total = self.within + counts[0], self.within10 + counts[1], \
+            self.total + len(gt)
+        return counts
+
+    def shares(self) -> dict:
+        b = self.bin_pixels
+        calibration = [{"conf": [CONF_BINS[i], CONF_BINS[i + 1]], "share": float(b[i] / self.total),
+                        "within_1pct": float(self.bin_within[i] / b[i]) if b[i] else None} for i in range(len(b))]
+        return {"within_1pct": self.within / self.total, "within_10pct_depth": self.within10 / self.total,
+                "median_abs_rel": float(np.median(np.concatenate(self.rel))), "confidence_calibration": calibration}
+
+
+def _scene_quality(scene_dir: Path, rec: Path, tally: _DepthTally) -> dict:
+    """One scene's row of :func:`synthetic_quality`: its depth shares (added to ``tally`` too) and its fused
+    cloud's accuracy and completeness against the true surface, in % of the mean true depth."""
+    run = open_run(rec)
+    within = within10 = total = 0
+    depths, rel = [], []
+    for view in run.views:
+        gt = read_pfm(scene_dir / "depth_gt" / f"{view.stem}.pfm")
+        cam = read_cam(scene_dir / "cams" / f"{view.stem}_cam.txt")
+        valid = gt > 0
+        err = np.abs(view.read_depth()[valid] - gt[valid])
+        w1, w10 = tally.add(err, gt[valid], view.read_confidence()[valid], 0.01 * (cam.depth_max - cam.depth_min))
+        within, within10, total = within + w1, within10 + w10, total + int(valid.sum())
+        depths.append(gt[valid])
+        rel.append(err / gt[valid])
+    rel = np.concatenate(rel)
+    tally.rel.append(rel)
+    pred = ply_points(read_ply(run.cloud)).astype(np.float64)
+    row = {"within_1pct": within / total, "within_10pct_depth": within10 / total,
+           "median_abs_rel": float(np.median(rel)), "points": int(len(pred))}
+    if len(pred):
+        mean_depth = float(np.concatenate(depths).mean())
+        d = cloud_distances(pred, ply_points(read_ply(scene_dir / "gt_surface.ply")).astype(np.float64))
+        row["accuracy_pct"] = 100 * float(d.pred_to_gt.mean()) / mean_depth
+        row["completeness_pct"] = 100 * float(d.gt_to_pred.mean()) / mean_depth
+    return row
 
 
 def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes: int = 4,
@@ -154,7 +176,6 @@ def calibrate_fusion_conf(out_dir: str | Path, config: ReconstructConfig, scenes
     F_beta (:data:`FUSION_BETA`) at ``tau_pct`` % of the mean scene depth, on ``scenes`` synthetic scenes
     (seeds ``seed ..``) of each of ``kinds`` ((style, sensor width range or None) pairs: by default the
     four kinds the quality check measures) reconstructed with ``config``'s network."""
-    from mvsformerpp.synth import generate_scene
 
     out = Path(out_dir)
     folders = []
@@ -178,13 +199,7 @@ def choose_fusion_conf(folders, methods=tuple(METHODS), grid=CONF_GRID,
     ``{"fusion_conf": {method: threshold}, "tau_pct", "beta", "table": {method: [rows per threshold]}}``
     (each row: the mean precision, recall, F-score and F_beta over the scenes); the threshold of each
     method is :func:`pick_threshold`'s."""
-    import tempfile
 
-    from mvsformerpp.evaluation.cloud import evaluate_clouds, f_score
-    from mvsformerpp.fusion import get_config
-    from mvsformerpp.io.pfm import read_pfm
-    from mvsformerpp.io.ply import ply_points, read_ply
-    from mvsformerpp.pipelines.fuse import fuse
 
     truth = []
     for scene_dir, _ in folders:
@@ -214,13 +229,6 @@ def choose_fusion_conf(folders, methods=tuple(METHODS), grid=CONF_GRID,
     return {"fusion_conf": best, "tau_pct": tau_pct, "beta": beta, "table": table}
 
 
-def pick_threshold(rows: list[dict], tie: float = F_SCORE_TIE) -> float:
-    """Of the thresholds (rows ``{"conf", "f_beta"}``) whose F_beta is within ``tie`` (relative) of the best,
-    the highest: among equals the stricter filter, since real photos are noisier than the scenes."""
-    top = max(row["f_beta"] for row in rows)
-    return max(row["conf"] for row in rows if row["f_beta"] >= (1 - tie) * top)
-
-
 def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: ReconstructConfig,
                      quiet: bool = True) -> dict:
     """Depth of the reference view of the DTU pair (640x512 photos, 160x128 ground truth in mm).
@@ -230,8 +238,6 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
     coordinates, as the training pipeline's ``depth[::4, ::4]``; the photos agree best with the ground truth
     placed there, ``tests/geometry/test_geometry.py``), not at the centre of the 4x4 block, 1.5 px away.
     """
-    from mvsformerpp.evaluation.depth import grid_artifact_ratio
-    from mvsformerpp.io.pfm import read_pfm
 
     pair_dir, out = Path(pair_dir), Path(out_dir)
     scene = out / "input"
@@ -246,7 +252,7 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
     rows = {}
     for i in (0, 1):
         gt = read_pfm(pair_dir / f"depth_map_{i:04d}.pfm")
-        est = read_pfm(out / "recon" / "depth_est" / f"{i:08d}.pfm")
+        est = open_run(out / "recon").views[i].read_depth()
         h, w = gt.shape
         near_gt = np.kron(gt > 0, np.ones((4, 4), bool))[: est.shape[0], : est.shape[1]]
         grid, grid32 = grid_artifact_ratio(est, 8, near_gt), grid_artifact_ratio(est, 32, near_gt)
@@ -262,38 +268,11 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
             **rows}
 
 
-def on_coarse_grid(depth: np.ndarray, shape: tuple[int, int], step: int) -> np.ndarray:
-    """``depth`` at the pixels of a grid ``step`` times coarser (pixel j on pixel ``step`` x j, the integer-pixel
-    convention of MVSNet-style cams): the median of each such pixel's 3x3 neighbourhood (edges repeated)."""
-    h, w = shape
-    padded = np.pad(depth[: step * h, : step * w], 1, mode="edge")
-    near = [padded[1 + dy: 1 + dy + step * h: step, 1 + dx: 1 + dx + step * w: step]
-            for dy in (-1, 0, 1) for dx in (-1, 0, 1)]
-    return np.median(np.stack(near, -1), -1)
-
-
-def from_coarse_grid(coarse: np.ndarray, step: int, order: int = 0) -> np.ndarray:
-    """A map ``step`` times finer whose pixel ``step`` x j holds coarse pixel j (:func:`on_coarse_grid`'s
-    convention), the pixels between from the nearest coarse pixel (``order`` 0) or linearly (1); where a
-    linear value would mix in a coarse 0 (no data) it is 0."""
-    from scipy.ndimage import map_coordinates
-
-    h, w = coarse.shape
-    ys, xs = np.mgrid[0 : step * h, 0 : step * w] / step
-    coords = np.stack([ys, xs])
-    out = map_coordinates(coarse.astype(np.float64), coords, order=order, mode="nearest")
-    if order:
-        full = map_coordinates((coarse > 0).astype(np.float64), coords, order=order, mode="nearest")
-        out = np.where(full > 0.999, out, 0.0)
-    return out.astype(np.float32)
-
-
 def temple_quality(out_dir: str | Path, config: ReconstructConfig | None = None, quiet: bool = True) -> dict:
     """Reconstruct the bundled temple (the demo's settings unless ``config``) and check the cloud."""
-    from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo
 
     summary = run_demo(out_dir, config or DEMO_CONFIG, quiet=quiet)
-    return {**temple_cloud_metrics(Path(out_dir) / "fused.ply"), "views": summary["views"],
+    return {**temple_cloud_metrics(open_run(out_dir).cloud), "views": summary["views"],
             "depth_s": summary["timings"]["depth_s"], "grid_ratio": temple_grid_ratio(out_dir),
             "grid_ratio_32": temple_grid_ratio(out_dir, 32)}
 
@@ -302,16 +281,14 @@ def temple_grid_ratio(out_dir: str | Path, cell: int = 8) -> float:
     """Median over the views of :func:`~mvsformerpp.evaluation.depth.grid_artifact_ratio` of the temple's
     depth maps on a ``cell``-pixel grid (8: stage-1 cells; 32: the stage-1 transformer's token patches),
     on the object (photo pixels brighter than :data:`DARK`)."""
-    from mvsformerpp.evaluation.depth import grid_artifact_ratio
-    from mvsformerpp.io.images import read_image
-    from mvsformerpp.io.pfm import read_pfm
 
     out = Path(out_dir)
     ratios = []
-    for path in sorted((out / "depth_est").glob("*.pfm")):
-        images = sorted((out / "images").glob(path.stem + ".*"))
-        depth = read_pfm(path)
-        mask = read_image(images[0]).max(2) > DARK if images else None
+    for view in open_run(out).views:
+        if view.depth is None:
+            continue
+        depth, image = view.read_depth(), view.read_image()
+        mask = image.max(2) > DARK if image is not None else None
         if mask is not None and mask.shape != depth.shape:
             mask = None
         ratios.append(grid_artifact_ratio(depth, cell, mask))
@@ -321,12 +298,7 @@ def temple_grid_ratio(out_dir: str | Path, cell: int = 8) -> float:
 def temple_cloud_metrics(ply: str | Path) -> dict:
     """Points of a temple cloud, the share inside the README's bounding box, and the mean share (over the
     16 photos) of the points in front of a camera and inside its image that fall on the object."""
-    from scipy.ndimage import binary_dilation
 
-    from mvsformerpp.io.images import read_image
-    from mvsformerpp.io.middlebury import find_par_file, read_bounding_box, read_par
-    from mvsformerpp.io.ply import ply_points, read_ply
-    from mvsformerpp.pipelines.demo import temple_dir
 
     pts = ply_points(read_ply(ply)).astype(np.float64)
     box = read_bounding_box(temple_dir())

@@ -1,14 +1,20 @@
 """The fusion-threshold calibration fuses real depth maps at each threshold and keeps the best F-score."""
 
 import shutil
+import sys
+from pathlib import Path
 
 import numpy as np
 import pytest
 
-from mvsformerpp.evaluation.cloud import f_score
-from mvsformerpp.io.pfm import read_pfm, write_pfm
-from mvsformerpp.pipelines.model_quality import choose_fusion_conf, pick_threshold
-from mvsformerpp.synth import generate_scene
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "bench"))
+
+from model_quality import choose_fusion_conf  # noqa: E402
+
+from mvsformerpp.evaluation.calibration import pick_threshold  # noqa: E402
+from mvsformerpp.evaluation.cloud import f_score  # noqa: E402
+from mvsformerpp.io.pfm import read_pfm, write_pfm  # noqa: E402
+from mvsformerpp.synth import generate_scene  # noqa: E402
 
 
 def test_calibration_keeps_the_highest_threshold_that_loses_no_f_score(tmp_path):
