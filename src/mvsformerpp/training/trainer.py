@@ -204,119 +204,145 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False,
 
 
 def _train(config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.DistInfo) -> dict:
-    train_ds, val_ds = datasets
-    ckpt_dir = run_dir / "checkpoints"
-    device = info.device
-    random.seed(config.seed)
-    model = build_training_model(config).to(device)
-    frozen = freeze(model, config)
-    loss_weights = tuple(config.loss_weights or model.config.loss_weights)
-    opt = build_optimizer(model, config)
-    per_epoch = MultiScaleBatchSampler.batches_per_epoch(len(train_ds), config.batch_size)
-    if per_epoch == 0:
-        raise TrainingError(f"the training set has {len(train_ds)} samples, fewer than one batch of "
-                            f"{config.batch_size}")
-    total = config.max_steps if config.max_steps is not None else config.epochs * per_epoch
-    sched = build_scheduler(opt, config.warmup_steps, total, config.min_lr_ratio)
-    scaler = torch.amp.GradScaler(device.type, enabled=config.precision == "fp16")
-    step, bad_steps, best = 0, 0, math.inf
-    if resume:
-        state = load_training_checkpoint(ckpt_dir, "last", model)
-        opt.load_state_dict(state["optimizer"])
-        sched.load_state_dict(state["scheduler"])
-        scaler.load_state_dict(state["scaler"])
-        set_rng_state(state["rng"])
-        step, bad_steps, best = int(state["step"]), int(state["bad_steps"]), float(state["best"])
-    ddp_model = D.wrap_model(model, info)
-    log = MetricsLog(run_dir, config.tensorboard, resume_step=step if resume else None) if info.is_main else None
-    per_rank = config.batch_size // info.world_size
-    bar = _Bar(total, step, config.progress and info.is_main)
-    set_train_mode(ddp_model, frozen)
-    # the running means of the next metrics row (kept in the checkpoint, so resumed rows are the same)
-    t_log, n_log, sums, n_steps = time.perf_counter(), 0, None, 0
-    if resume and state.get("log_window"):
-        sums, n_steps = state["log_window"]["sums"], int(state["log_window"]["steps"])
-    last_val = None
-
-    def save(name: str = "last") -> None:
-        if info.is_main:
-            save_training_checkpoint(ckpt_dir, name, model, {
-                "step": step, "epoch": step // per_epoch, "batch_in_epoch": step % per_epoch,
-                "optimizer": opt.state_dict(), "scheduler": sched.state_dict(), "scaler": scaler.state_dict(),
-                "rng": rng_state(), "bad_steps": bad_steps, "best": best,
-                "log_window": {"sums": sums, "steps": n_steps}})
-        D.barrier(info)
-
-    def run_validation() -> None:
-        nonlocal best, last_val
-        if info.is_main:
-            metrics = validate(model, val_ds, config, device, loss_weights)
-            set_train_mode(ddp_model, frozen)
-            last_val = {"step": step, "split": "val", **metrics}
-            log.write(last_val, prefix="val")
-            value = metrics.get(config.best_metric, math.nan)
-            if math.isfinite(value) and value < best:
-                best = value
-                save_training_checkpoint(ckpt_dir, "best", model, None)
-        D.barrier(info)
-
+    run = _TrainingRun(config, run_dir, resume, datasets, info)
     try:
-        if step == 0 and total > 0:
-            run_validation()  # the starting point of the validation curve
-        while step < total:
-            epoch, start = divmod(step, per_epoch)
-            sampler = MultiScaleBatchSampler(len(train_ds), config.batch_size, config.resolutions or
-                                             [(config.height, config.width)], seed=config.seed, epoch=epoch,
-                                             rank=info.rank, world_size=info.world_size, start=start,
-                                             block=shuffle_block(config))
-            # its own generator: a loader drawing its workers' seed from the global one would make a resumed
-            # run's random state (saved in its checkpoints) differ from the uninterrupted run's
-            loader = DataLoader(train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=config.num_workers,
-                                persistent_workers=False,
-                                generator=torch.Generator().manual_seed(config.seed * 1_000_003 + epoch))
-            for batch in loader:
-                micro = micro_batch_for(config, batch["imgs"].shape[-2], per_rank)
-                loss_vec, bad = _train_step(ddp_model, opt, scaler, batch, micro, per_rank, loss_weights, config,
-                                            device, info, step)
-                lr = opt.param_groups[0]["lr"]
-                with warnings.catch_warnings():  # a skipped step still advances the schedule
-                    warnings.filterwarnings("ignore", message=re.escape("Detected call of `lr_scheduler.step()`"))
-                    sched.step()
-                step += 1
-                n_log += per_rank * info.world_size
-                if bad:
-                    bad_steps += 1
-                    if bad_steps > config.max_bad_steps:
-                        raise TrainingError(f"{bad_steps} steps had a non-finite loss (the last at step {step}); "
-                                            "the run stops. Lower the learning rate, use fp32/bf16, or check the "
-                                            "data; continue from the last checkpoint with --resume")
-                else:
-                    sums = loss_vec if sums is None else sums + loss_vec
-                    n_steps += 1
-                if info.is_main and sums is not None and (step % config.log_every == 0 or step == total):
-                    avg = (sums / n_steps).tolist()
-                    sps = n_log / max(time.perf_counter() - t_log, 1e-9)
-                    log.write({"step": step, "epoch": step / per_epoch, "loss": avg[0], "lr": lr,
-                               **{f"stage{i + 1}": v for i, v in enumerate(avg[1:]) if i < config.train_stages},
-                               "samples_per_s": sps, "bad_steps": bad_steps})
-                    bar.update(loss=f"{avg[0]:.3f}", lr=f"{lr:.2e}", sps=f"{sps:.2f}")
-                    t_log, n_log, sums, n_steps = time.perf_counter(), 0, None, 0
-                else:
-                    bar.update()
-                end_of_epoch = step % per_epoch == 0
-                if (config.val_every and step % config.val_every == 0) or (not config.val_every and end_of_epoch) \
-                        or step == total:
-                    run_validation()
-                if step % config.save_every == 0 or step == total:
-                    save()
-                if step >= total or end_of_epoch:
+        if run.step == 0 and run.total > 0:
+            run.validate()  # the starting point of the validation curve
+        while run.step < run.total:
+            for batch in run.epoch_loader():
+                run.train_step(batch)
+                end_of_epoch = run.step % run.per_epoch == 0
+                if (config.val_every and run.step % config.val_every == 0) or (not config.val_every and end_of_epoch) \
+                        or run.step == run.total:
+                    run.validate()
+                if run.step % config.save_every == 0 or run.step == run.total:
+                    run.save()
+                if run.step >= run.total or end_of_epoch:
                     break
     finally:
-        bar.close()
-        if log is not None:
-            log.close()
-    return {"steps": step, "bad_steps": bad_steps, "best": best, "last_validation": last_val,
-            "checkpoint": str(ckpt_dir / "last.safetensors")}
+        run.bar.close()
+        if run.log is not None:
+            run.log.close()
+    return {"steps": run.step, "bad_steps": run.bad_steps, "best": run.best, "last_validation": run.last_val,
+            "checkpoint": str(run.ckpt_dir / "last.safetensors")}
+
+
+class _TrainingRun:
+    """One training run between its steps: the network, its optimiser, schedule and scaler, the step and
+    bad-step counters, the best validation value and the running means of the next metrics row (all of
+    which the checkpoint keeps, so that a resumed run continues exactly)."""
+
+    def __init__(self, config: TrainConfig, run_dir: Path, resume: bool, datasets, info: D.DistInfo):
+        self.config, self.info = config, info
+        self.train_ds, self.val_ds = datasets
+        self.ckpt_dir = run_dir / "checkpoints"
+        self.device = device = info.device
+        random.seed(config.seed)
+        self.model = build_training_model(config).to(device)
+        self.frozen = freeze(self.model, config)
+        self.loss_weights = tuple(config.loss_weights or self.model.config.loss_weights)
+        self.opt = build_optimizer(self.model, config)
+        self.per_epoch = MultiScaleBatchSampler.batches_per_epoch(len(self.train_ds), config.batch_size)
+        if self.per_epoch == 0:
+            raise TrainingError(f"the training set has {len(self.train_ds)} samples, fewer than one batch of "
+                                f"{config.batch_size}")
+        self.total = config.max_steps if config.max_steps is not None else config.epochs * self.per_epoch
+        self.sched = build_scheduler(self.opt, config.warmup_steps, self.total, config.min_lr_ratio)
+        self.scaler = torch.amp.GradScaler(device.type, enabled=config.precision == "fp16")
+        self.step, self.bad_steps, self.best = 0, 0, math.inf
+        state = self._resume() if resume else {}
+        self.ddp_model = D.wrap_model(self.model, info)
+        self.log = MetricsLog(run_dir, config.tensorboard, resume_step=self.step if resume else None) \
+            if info.is_main else None
+        self.per_rank = config.batch_size // info.world_size
+        self.bar = _Bar(self.total, self.step, config.progress and info.is_main)
+        set_train_mode(self.ddp_model, self.frozen)
+        # the running means of the next metrics row (kept in the checkpoint, so resumed rows are the same)
+        self.t_log, self.n_log, self.sums, self.n_steps = time.perf_counter(), 0, None, 0
+        if state.get("log_window"):
+            self.sums, self.n_steps = state["log_window"]["sums"], int(state["log_window"]["steps"])
+        self.last_val = None
+
+    def _resume(self) -> dict:
+        state = load_training_checkpoint(self.ckpt_dir, "last", self.model)
+        self.opt.load_state_dict(state["optimizer"])
+        self.sched.load_state_dict(state["scheduler"])
+        self.scaler.load_state_dict(state["scaler"])
+        set_rng_state(state["rng"])
+        self.step, self.bad_steps, self.best = int(state["step"]), int(state["bad_steps"]), float(state["best"])
+        return state
+
+    def epoch_loader(self) -> DataLoader:
+        """The batches of the current epoch from the current step on (this rank's share)."""
+        config, info = self.config, self.info
+        epoch, start = divmod(self.step, self.per_epoch)
+        sampler = MultiScaleBatchSampler(len(self.train_ds), config.batch_size, config.resolutions or
+                                         [(config.height, config.width)], seed=config.seed, epoch=epoch,
+                                         rank=info.rank, world_size=info.world_size, start=start,
+                                         block=shuffle_block(config))
+        # its own generator: a loader drawing its workers' seed from the global one would make a resumed
+        # run's random state (saved in its checkpoints) differ from the uninterrupted run's
+        return DataLoader(self.train_ds, batch_sampler=sampler, collate_fn=collate, num_workers=config.num_workers,
+                          persistent_workers=False,
+                          generator=torch.Generator().manual_seed(config.seed * 1_000_003 + epoch))
+
+    def train_step(self, batch: dict) -> None:
+        """One optimiser step on ``batch``, the schedule's step, and the step's place in the metrics."""
+        config, info = self.config, self.info
+        micro = micro_batch_for(config, batch["imgs"].shape[-2], self.per_rank)
+        loss_vec, bad = _train_step(self.ddp_model, self.opt, self.scaler, batch, micro, self.per_rank,
+                                    self.loss_weights, config, self.device, info, self.step)
+        lr = self.opt.param_groups[0]["lr"]
+        with warnings.catch_warnings():  # a skipped step still advances the schedule
+            warnings.filterwarnings("ignore", message=re.escape("Detected call of `lr_scheduler.step()`"))
+            self.sched.step()
+        self.step += 1
+        self.n_log += self.per_rank * info.world_size
+        if bad:
+            self.bad_steps += 1
+            if self.bad_steps > config.max_bad_steps:
+                raise TrainingError(f"{self.bad_steps} steps had a non-finite loss (the last at step {self.step}); "
+                                    "the run stops. Lower the learning rate, use fp32/bf16, or check the "
+                                    "data; continue from the last checkpoint with --resume")
+        else:
+            self.sums = loss_vec if self.sums is None else self.sums + loss_vec
+            self.n_steps += 1
+        if info.is_main and self.sums is not None and (self.step % config.log_every == 0 or self.step == self.total):
+            self._write_row(lr)
+        else:
+            self.bar.update()
+
+    def _write_row(self, lr: float) -> None:
+        """A metrics row of the running means since the last one; the means start again."""
+        avg = (self.sums / self.n_steps).tolist()
+        sps = self.n_log / max(time.perf_counter() - self.t_log, 1e-9)
+        self.log.write({"step": self.step, "epoch": self.step / self.per_epoch, "loss": avg[0], "lr": lr,
+                        **{f"stage{i + 1}": v for i, v in enumerate(avg[1:]) if i < self.config.train_stages},
+                        "samples_per_s": sps, "bad_steps": self.bad_steps})
+        self.bar.update(loss=f"{avg[0]:.3f}", lr=f"{lr:.2e}", sps=f"{sps:.2f}")
+        self.t_log, self.n_log, self.sums, self.n_steps = time.perf_counter(), 0, None, 0
+
+    def save(self, name: str = "last") -> None:
+        if self.info.is_main:
+            save_training_checkpoint(self.ckpt_dir, name, self.model, {
+                "step": self.step, "epoch": self.step // self.per_epoch, "batch_in_epoch": self.step % self.per_epoch,
+                "optimizer": self.opt.state_dict(), "scheduler": self.sched.state_dict(),
+                "scaler": self.scaler.state_dict(), "rng": rng_state(), "bad_steps": self.bad_steps,
+                "best": self.best, "log_window": {"sums": self.sums, "steps": self.n_steps}})
+        D.barrier(self.info)
+
+    def validate(self) -> None:
+        """Validation on the main process; a new best value writes ``best.safetensors``."""
+        if self.info.is_main:
+            metrics = validate(self.model, self.val_ds, self.config, self.device, self.loss_weights)
+            set_train_mode(self.ddp_model, self.frozen)
+            self.last_val = {"step": self.step, "split": "val", **metrics}
+            self.log.write(self.last_val, prefix="val")
+            value = metrics.get(self.config.best_metric, math.nan)
+            if math.isfinite(value) and value < self.best:
+                self.best = value
+                save_training_checkpoint(self.ckpt_dir, "best", self.model, None)
+        D.barrier(self.info)
 
 
 def window_guide(chunk: dict, fraction: float, generator: torch.Generator) -> dict | None:
