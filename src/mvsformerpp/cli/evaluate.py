@@ -211,7 +211,11 @@ def register(subparsers) -> None:
     parser = subparsers.add_parser("evaluate", help="evaluate depth maps and point clouds (DTU, TnT, ETH3D)",
                                    description="Evaluate depth maps and point clouds against ground truth.")
     sub = parser.add_subparsers(dest="evaluate_command", metavar="KIND", required=True)
+    for add in (_add_cloud, _add_depth, _add_dtu, _add_tnt, _add_tnt_submit, _add_eth3d):
+        add(sub)
 
+
+def _add_cloud(sub) -> None:
     p = sub.add_parser("cloud", help="precision/recall/F-score at a threshold, accuracy/completeness")
     _cloud_args(p)
     p.add_argument("--threshold", type=float, required=True, help="distance threshold, in the clouds' unit")
@@ -219,6 +223,8 @@ def register(subparsers) -> None:
     _view_args(p)
     p.set_defaults(func=_checked(_cmd_cloud))
 
+
+def _add_depth(sub) -> None:
     p = sub.add_parser("depth", help="depth-map metrics over folders of PFM files matched by name")
     p.add_argument("pred_dir", help="folder of predicted depth maps (.pfm)")
     p.add_argument("gt_dir", help="folder of ground-truth depth maps (.pfm); 0 or non-finite = invalid")
@@ -231,6 +237,8 @@ def register(subparsers) -> None:
     p.add_argument("--json", metavar="OUT.json", help="write overall and per-view metrics")
     p.set_defaults(func=_checked(_cmd_depth))
 
+
+def _add_dtu(sub) -> None:
     p = sub.add_parser("dtu", help="official DTU protocol (acc/comp/overall in mm) without MATLAB")
     p.add_argument("pred", help="a fused PLY (with one --scans) or a folder of per-scan PLYs")
     p.add_argument("--dtu-root", required=True, help="DTU evaluation data folder holding ObsMask/ and Points/stl/")
@@ -245,6 +253,8 @@ def register(subparsers) -> None:
                    help="write scan{N}_accuracy.ply / scan{N}_completeness.ply coloured by error (0-2 mm)")
     p.set_defaults(func=_checked(_cmd_dtu))
 
+
+def _add_tnt(sub) -> None:
     p = sub.add_parser("tnt", help="Tanks-and-Temples precision/recall/F-score")
     _cloud_args(p)
     p.add_argument("--scene", help="scene name, for its official threshold (e.g. Ignatius)")
@@ -259,6 +269,8 @@ def register(subparsers) -> None:
     _view_args(p)
     p.set_defaults(func=_checked(_cmd_tnt))
 
+
+def _add_tnt_submit(sub) -> None:
     p = sub.add_parser("tnt-submit", aliases=["tnt-package"], help="package a Tanks-and-Temples leaderboard folder")
     p.add_argument("out_dir", help="submission folder to write")
     p.add_argument("items", nargs="+", metavar="ITEM",
@@ -266,6 +278,8 @@ def register(subparsers) -> None:
     p.add_argument("--overwrite", action="store_true", help="replace scenes already packaged")
     p.set_defaults(func=_cmd_tnt_submit)
 
+
+def _add_eth3d(sub) -> None:
     p = sub.add_parser("eth3d", help="ETH3D-style accuracy/completeness/F1 at tolerances")
     _cloud_args(p)
     p.add_argument("--tolerances", type=float, nargs="+", default=[0.01, 0.02, 0.05, 0.1, 0.2, 0.5],

@@ -30,16 +30,24 @@ import numpy as np
 import torch
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.fusion.normals import normal_map
+from mvsformerpp.geometry.frustum import FRUSTUM_FACES, frustum_points
+from mvsformerpp.io.colmap_dense import write_colmap_array
+from mvsformerpp.io.colmap_model import (
+    ColmapCamera,
+    ColmapImage,
+    ColmapModel,
+    ColmapPoint3D,
+    rotmat_to_qvec,
+    write_model,
+)
+from mvsformerpp.io.depth_folder import load_depth_folder
 from mvsformerpp.io.output_folder import require_depth_maps
+from mvsformerpp.io.ply import write_ply
 
 
 def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:
     """Write the reconstruction in ``folder`` as a COLMAP dense workspace ``target``; returns ``target``."""
-    from mvsformerpp.fusion.normals import normal_map
-    from mvsformerpp.io.colmap_dense import write_colmap_array
-    from mvsformerpp.io.colmap_model import ColmapCamera, ColmapImage, ColmapModel, rotmat_to_qvec, write_model
-    from mvsformerpp.io.depth_folder import load_depth_folder
-
     folder, target = Path(folder), Path(target)
     if target.exists() and (not target.is_dir() or any(target.iterdir())) and not overwrite:
         raise InputError("the export target exists and is not empty; choose another folder or pass --overwrite",
@@ -60,28 +68,7 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
     target.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
     try:
-        for sub in ("images", "sparse", "stereo/depth_maps", "stereo/normal_maps", "stereo/consistency_graphs"):
-            (tmp / sub).mkdir(parents=True)
-        cameras, images, names = {}, {}, []
-        for i, (view, depth) in enumerate(zip(scene.views, depths)):
-            name = f"{view.name}{view.image_path.suffix.lower()}"
-            names.append(name)
-            _link_or_copy(view.image_path, tmp / "images" / name)
-            K = view.K
-            cameras[i + 1] = ColmapCamera(i + 1, "PINHOLE", view.width, view.height,
-                                          np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]))
-            images[i + 1] = ColmapImage(i + 1, rotmat_to_qvec(view.R), view.t.copy(), i + 1, name)
-            h, w = depth.shape
-            Kd = np.diag([w / view.width, h / view.height, 1.0]) @ K
-            normals = normal_map(torch.from_numpy(np.ascontiguousarray(depth)), torch.from_numpy(Kd)).numpy()
-            for kind in ("geometric", "photometric"):
-                write_colmap_array(tmp / "stereo" / "depth_maps" / f"{name}.{kind}.bin", depth)
-                write_colmap_array(tmp / "stereo" / "normal_maps" / f"{name}.{kind}.bin", normals)
-        points = sparse_points(scene, depths, photos, images)
-        write_model(ColmapModel(cameras, images, points), tmp / "sparse", ext=".bin")
-        (tmp / "stereo" / "fusion.cfg").write_text("".join(f"{n}\n" for n in names))
-        (tmp / "stereo" / "patch-match.cfg").write_text("".join(f"{n}\n__auto__, 20\n" for n in names))
-        write_frustums(scene, tmp / "cameras.ply")
+        names = _write_workspace(tmp, scene, depths, photos)
         if target.exists():
             shutil.rmtree(target) if target.is_dir() else target.unlink()
         os.replace(tmp, target)
@@ -97,6 +84,33 @@ def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = Fals
     return target
 
 
+def _write_workspace(root: Path, scene, depths, photos) -> list[str]:
+    """The workspace of the module docstring in the empty folder ``root``; returns the photos' names."""
+    for sub in ("images", "sparse", "stereo/depth_maps", "stereo/normal_maps", "stereo/consistency_graphs"):
+        (root / sub).mkdir(parents=True)
+    cameras, images, names = {}, {}, []
+    for i, (view, depth) in enumerate(zip(scene.views, depths)):
+        name = f"{view.name}{view.image_path.suffix.lower()}"
+        names.append(name)
+        _link_or_copy(view.image_path, root / "images" / name)
+        K = view.K
+        cameras[i + 1] = ColmapCamera(i + 1, "PINHOLE", view.width, view.height,
+                                      np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]))
+        images[i + 1] = ColmapImage(i + 1, rotmat_to_qvec(view.R), view.t.copy(), i + 1, name)
+        h, w = depth.shape
+        Kd = np.diag([w / view.width, h / view.height, 1.0]) @ K
+        normals = normal_map(torch.from_numpy(np.ascontiguousarray(depth)), torch.from_numpy(Kd)).numpy()
+        for kind in ("geometric", "photometric"):
+            write_colmap_array(root / "stereo" / "depth_maps" / f"{name}.{kind}.bin", depth)
+            write_colmap_array(root / "stereo" / "normal_maps" / f"{name}.{kind}.bin", normals)
+    points = sparse_points(scene, depths, photos, images)
+    write_model(ColmapModel(cameras, images, points), root / "sparse", ext=".bin")
+    (root / "stereo" / "fusion.cfg").write_text("".join(f"{n}\n" for n in names))
+    (root / "stereo" / "patch-match.cfg").write_text("".join(f"{n}\n__auto__, 20\n" for n in names))
+    write_frustums(scene, root / "cameras.ply")
+    return names
+
+
 def _is_workspace(path: Path) -> bool:
     """An empty folder, or one laid out as the COLMAP workspace this command writes."""
     if not path.is_dir():
@@ -110,8 +124,6 @@ def sparse_points(scene, depths, photos, images: dict, per_view: int = 2000, tol
     """COLMAP 3-D points from the depth maps: ``per_view`` random pixels of each view, back-projected, each
     observed by every view that sees it (projected depth within ``tolerance`` relative of that view's
     depth there). Fills ``images[k].xys`` / ``point3D_ids`` (image k = view k - 1) and returns the points."""
-    from mvsformerpp.io.colmap_model import ColmapPoint3D
-
     rng = np.random.default_rng(seed)
     xyz, rgb = [], []
     for view, depth, photo in zip(scene.views, depths, photos):
@@ -163,9 +175,6 @@ def _link_or_copy(src: Path, dst: Path) -> None:
 def write_frustums(scene, path: Path, size: float | None = None) -> Path:
     """The cameras of ``scene`` as a PLY mesh of frustums (image corners at depth ``size``; default: a
     quarter of the median near depth, or of the median distance between neighbouring cameras)."""
-    from mvsformerpp.geometry.frustum import FRUSTUM_FACES, frustum_points
-    from mvsformerpp.io.ply import write_ply
-
     if size is None:
         near = [v.depth_min for v in scene.views if v.depth_min]
         if near:

@@ -85,48 +85,67 @@ def plane_scene(height: int, width: int, tilt_deg: float = 0.0, verge: bool = Fa
     normal = (np.array([0.0, -np.sin(tilt), -np.cos(tilt)]) if tilt_axis == "x" else
               np.array([np.sin(tilt), 0.0, -np.cos(tilt)]))
     centre = np.array([0.0, 0.0, depth])
-    offset = normal @ centre  # the plane: normal . X = offset
     axis_u = np.cross(normal, [0.0, 1.0, 0.0])  # the plane's own 2-D frame (x-tilt: the camera's x axis)
     axis_u /= np.linalg.norm(axis_u)
-    axis_v = np.cross(normal, axis_u)
-    texel = depth / f * texel_px
+    plane = _TexturedPlane(normal, normal @ centre, centre, axis_u, np.cross(normal, axis_u), depth / f * texel_px,
+                           tilt_deg)
     tex = torch.from_numpy(plane_texture() if texture is None else texture).permute(2, 0, 1).float()[None] / 255
-    th, tw = tex.shape[-2:]
     baseline = disparity * depth / f
     ys, xs = np.meshgrid(np.arange(height) + 0.5, np.arange(width) + 0.5, indexing="ij")
     pixels = np.stack([xs.ravel(), ys.ravel(), np.ones(xs.size)])  # [3, HW]
-
-    def hits(R: np.ndarray, C: np.ndarray, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Plane points [HW, 3] on the rays of ``pix`` and their z-depths in the camera."""
-        rays = R.T @ K_inv @ pix  # world directions, z-component 1 in the camera's frame
-        s = (offset - normal @ C) / (normal @ rays)
-        if np.any(s <= 0):
-            raise ValueError(f"a camera sees past the horizon of a plane tilted {tilt_deg} degrees; "
-                             "lower the tilt or the field of view")
-        return (C[:, None] + rays * s).T, s
-
     images, extrinsics, depths = [], [], []
     for k in offsets:
         C = np.array([k * baseline, 0.0, 0.0])
         R = _look_at(C, centre) if verge and k != 0 else np.eye(3)
+        images.append(plane.render(tex, K_inv, R, C, pixels, height, width, supersample))
+        E = np.eye(4)
+        E[:3, :3], E[:3, 3] = R, -R @ C
+        extrinsics.append(E)
+        depths.append(plane.hits(K_inv, R, C, pixels)[1])
+    all_depths = np.concatenate(depths)
+    rng = (0.8 * float(all_depths.min()), 1.25 * float(all_depths.max()))
+    return PlaneScene(images, K, extrinsics, depths[0].reshape(height, width).astype(np.float32), rng)
+
+
+@dataclass(frozen=True)
+class _TexturedPlane:
+    """The plane normal . X = offset, textured in its own 2-D frame (``axis_u``, ``axis_v`` through ``centre``,
+    one texel ``texel`` scene units wide)."""
+
+    normal: np.ndarray
+    offset: float
+    centre: np.ndarray
+    axis_u: np.ndarray
+    axis_v: np.ndarray
+    texel: float
+    tilt_deg: float
+
+    def hits(self, K_inv: np.ndarray, R: np.ndarray, C: np.ndarray, pix: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Plane points [HW, 3] on the rays of ``pix`` ([3, HW]) and their z-depths in the camera (R, centre C)."""
+        rays = R.T @ K_inv @ pix  # world directions, z-component 1 in the camera's frame
+        s = (self.offset - self.normal @ C) / (self.normal @ rays)
+        if np.any(s <= 0):
+            raise ValueError(f"a camera sees past the horizon of a plane tilted {self.tilt_deg} degrees; "
+                             "lower the tilt or the field of view")
+        return (C[:, None] + rays * s).T, s
+
+    def render(self, tex: torch.Tensor, K_inv: np.ndarray, R: np.ndarray, C: np.ndarray, pixels: np.ndarray,
+               height: int, width: int, supersample: int) -> np.ndarray:
+        """The camera's photo [H, W, 3] uint8: the texture ([1, 3, th, tw] in [0, 1]) averaged over
+        ``supersample`` x ``supersample`` rays per pixel."""
+        th, tw = tex.shape[-2:]
         acc = torch.zeros(1, 3, height, width)
         for sy in range(supersample):
             for sx in range(supersample):
                 jitter = np.array([(sx + 0.5) / supersample - 0.5, (sy + 0.5) / supersample - 0.5, 0.0])
-                points, _ = hits(R, C, pixels + jitter[:, None])
-                rel = points - centre
-                grid = np.stack([rel @ axis_u / texel / (tw / 2), rel @ axis_v / texel / (th / 2)], -1)
+                points, _ = self.hits(K_inv, R, C, pixels + jitter[:, None])
+                rel = points - self.centre
+                grid = np.stack([rel @ self.axis_u / self.texel / (tw / 2), rel @ self.axis_v / self.texel / (th / 2)],
+                                -1)
                 grid = torch.from_numpy(grid.reshape(1, height, width, 2)).float()
                 acc += F.grid_sample(tex, grid, mode="bilinear", padding_mode="reflection", align_corners=False)
         image = (acc / supersample**2)[0].permute(1, 2, 0).clamp(0, 1).numpy()
-        images.append(np.round(image * 255).astype(np.uint8))
-        E = np.eye(4)
-        E[:3, :3], E[:3, 3] = R, -R @ C
-        extrinsics.append(E)
-        depths.append(hits(R, C, pixels)[1])
-    all_depths = np.concatenate(depths)
-    rng = (0.8 * float(all_depths.min()), 1.25 * float(all_depths.max()))
-    return PlaneScene(images, K, extrinsics, depths[0].reshape(height, width).astype(np.float32), rng)
+        return np.round(image * 255).astype(np.uint8)
 
 
 def write_plane_scene(out_dir: str | Path, scene: PlaneScene) -> Path:

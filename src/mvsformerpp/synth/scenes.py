@@ -51,6 +51,12 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
         return scene
     if sensor_width is not None or detail:
         raise ValueError("sensor_width and detail need style 'train' or 'heldout'")
+    return _classic_scene(seed, num_views, height, width, num_objects, arc_degrees)
+
+
+def _classic_scene(seed: int, num_views: int, height: int, width: int, num_objects: int | None,
+                   arc_degrees: float) -> SynthScene:
+    """The ``classic`` style of :func:`random_scene`."""
     rng = np.random.default_rng(seed)
     pal = lambda: rng.uniform(0.05, 0.95, size=(2, 3))  # noqa: E731
     surfaces = [
@@ -71,6 +77,13 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
             shape = Cylinder(np.array([x, y]), size * 0.8, 0.0, size * rng.uniform(1.5, 3.0))
         tex = TEXTURES[(k + seed) % len(TEXTURES)]
         surfaces.append(Surface(shape, tex, pal(), seed + 10 + k, rng.uniform(0.7, 1.6)))
+    return SynthScene(surfaces, _arc_cameras(rng, num_views, height, width, arc_degrees), width, height,
+                      {"seed": seed})
+
+
+def _arc_cameras(rng: np.random.Generator, num_views: int, height: int, width: int,
+                 arc_degrees: float) -> list[Camera]:
+    """Cameras on an arc of ``arc_degrees`` around the classic scene's middle, looking at it."""
     focal = 0.95 * width
     K = np.array([[focal, 0, width / 2], [0, focal, height / 2], [0, 0, 1.0]])
     target = np.array([-0.2, 0.0, 0.35])
@@ -82,4 +95,4 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
                                         np.sin(elevation)])
         R, t = look_at(c, target)
         cams.append(Camera(K.copy(), R, t))
-    return SynthScene(surfaces, cams, width, height, {"seed": seed})
+    return cams
