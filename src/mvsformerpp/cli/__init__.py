@@ -1,7 +1,9 @@
 """The ``mvsformerpp`` command: one subcommand per module in this package.
 
 Each subcommand module defines ``register(subparsers)``, which adds its parser and sets
-``func`` to a callable taking the parsed arguments and returning an exit code.
+``func`` to a callable taking the parsed arguments and returning an exit code. A subcommand imports
+its pipeline inside that callable, not at the top of its module: every invocation builds the whole
+parser, which loads neither torch nor scipy (``tests/cli/test_startup.py``; torch alone takes seconds).
 """
 
 from __future__ import annotations

@@ -21,8 +21,10 @@ from collections.abc import Callable
 
 import numpy as np
 
+from mvsformerpp import synth
 from mvsformerpp.data.base import MVSDataset, ViewData, ViewSet
 from mvsformerpp.errors import InputError
+from mvsformerpp.synth.render import sensor_depth_range
 
 DEFAULT_SOURCE = "mvsformerpp.synth:random_scene"
 SOURCE_ARGS = ("seed", "num_views", "height", "width")
@@ -110,7 +112,6 @@ class SyntheticDataset(MVSDataset):
         kept for the next samples of this process: samples of one scene in a row (``TrainConfig``'s
         ``synthetic_scene_batches``) render each view once. Rendering is deterministic, so a kept view is
         the one a new rendering would give."""
-        from mvsformerpp.synth import render_view
 
         key = (seed, h, w)
         if key not in self._kept:
@@ -123,13 +124,11 @@ class SyntheticDataset(MVSDataset):
 
         def render(i: int) -> tuple[np.ndarray, np.ndarray]:
             if i not in views:
-                views[i] = render_view(scene, scene.cameras[i])[:2]
+                views[i] = synth.render_view(scene, scene.cameras[i])[:2]
             return views[i]
         return scene, render
 
     def load_views(self, index: int, rng: np.random.Generator, height: int, width: int) -> ViewSet:
-        from mvsformerpp.synth.render import sensor_depth_range
-
         scene_idx, ref = divmod(index, self.views_per_scene)
         h, w = round(height * self.render_scale), round(width * self.render_scale)
         # A random scene may have a view that sees nothing or next to nothing (a window of sky): the next

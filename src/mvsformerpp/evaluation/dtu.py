@@ -27,6 +27,7 @@ import scipy.io
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.evaluation.distances import check_points, load_cloud, nearest_distances
 from mvsformerpp.evaluation.thinning import thin_points
+from mvsformerpp.evaluation.visualize import write_error_ply
 
 #: The 22 evaluation scans of the DTU test split used by MVSNet-family papers.
 DTU_TEST_SCANS: tuple[int, ...] = (1, 4, 9, 10, 11, 12, 13, 15, 23, 24, 29, 32, 33, 34, 48, 49, 62, 75, 77, 110,
@@ -217,7 +218,6 @@ def evaluate_dtu_points(
 def write_dtu_error_clouds(out_dir: str | Path, scan: int, dist: DTUDistances, scale: float = 2.0) -> list[Path]:
     """Write ``scan{N}_accuracy.ply`` (used prediction points) and ``scan{N}_completeness.ply`` (used
     ground-truth points), coloured blue (0 mm) to red (>= ``scale`` mm), with the distance as ``error``."""
-    from mvsformerpp.evaluation.visualize import write_error_ply
 
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)

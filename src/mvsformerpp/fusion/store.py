@@ -15,6 +15,7 @@ import numpy as np
 import torch
 
 from mvsformerpp.fusion.core import FusionView
+from mvsformerpp.fusion.views import make_view
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.utils.lru import BytesLRU
 
@@ -47,8 +48,6 @@ class ViewStore(Sequence):
 def scene_view_store(scene: Scene, read: Callable[[int], tuple[np.ndarray, np.ndarray | None, np.ndarray]],
                      max_bytes: int, device: str | torch.device = "cpu") -> ViewStore:
     """A :class:`ViewStore` over ``scene``: ``read(i)`` returns view i's (depth, confidence or None, image)."""
-    from mvsformerpp.fusion import make_view
-
     def load(i: int) -> FusionView:
         depth, conf, image = read(i)
         return make_view(scene.views[i], depth, conf, image, device)

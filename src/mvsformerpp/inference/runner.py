@@ -21,10 +21,12 @@ import torch
 
 from mvsformerpp.inference.feature_cache import FeatureCache
 from mvsformerpp.inference.resolution import ViewResize
+from mvsformerpp.inference.schedule import cache_friendly_order, simulate_cache
 from mvsformerpp.inference.search_range import SearchRange, search_range
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models import prepared
 from mvsformerpp.models.inputs import normalize, stage_projections
+from mvsformerpp.utils.lru import tree_nbytes
 from mvsformerpp.utils.precision import autocast, check_precision
 
 
@@ -132,8 +134,6 @@ class SceneInference:
         reference image is encoded here (and cached, so its own view then hits). Returns ``order``,
         ``capacity_images`` and the simulated ``predicted`` / ``predicted_index_order`` hits and misses.
         """
-        from mvsformerpp.inference.schedule import cache_friendly_order, simulate_cache
-        from mvsformerpp.utils.lru import tree_nbytes
 
         if not todo or not self.use_cache:
             return {"order": list(todo), "capacity_images": 0}

@@ -28,7 +28,7 @@ from mvsformerpp.io.benchmarks import (
     load_dtu_scene,
     load_tnt_scene,
 )
-from mvsformerpp.io.colmap import find_colmap_model, load_colmap_scene
+from mvsformerpp.io.colmap import MODEL_SUBDIRS, find_colmap_model, load_colmap_scene
 from mvsformerpp.io.colmap_model import model_extension
 from mvsformerpp.io.images import list_images
 from mvsformerpp.io.middlebury import find_par_file, load_middlebury_scene
@@ -47,7 +47,6 @@ def mvsnet_cam_dir(path: Path) -> Path | None:
 
 def _refuse_incomplete(path: Path) -> None:
     """Name what is missing from a folder that is almost a COLMAP model or an MVSNet scene."""
-    from mvsformerpp.io.colmap import MODEL_SUBDIRS
 
     for sub in MODEL_SUBDIRS:
         folder = path / sub

@@ -21,7 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.errors import FormatError, InputError
-from mvsformerpp.io.images import find_image, read_alpha, read_image
+from mvsformerpp.io.images import find_image, image_size, read_alpha, read_image
 
 # Black threshold of BlendedMVS's masked photos (JPEG leaves some noise in the black background).
 _MASKED_PHOTO_BLACK = 10
@@ -103,7 +103,6 @@ def mask_paths(path: str | Path, names: list[str]) -> list[Path]:
 
 def check_mask_size(path: Path, height: int, width: int) -> None:
     """Refuse a mask whose aspect ratio is not its image's (header read only)."""
-    from mvsformerpp.io.images import image_size
 
     w, h = image_size(path)
     _check_aspect(h, w, height, width, path)

@@ -28,6 +28,7 @@ from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import image_size
 from mvsformerpp.io.scene import Scene, View
 from mvsformerpp.io.viewselect import neighbors_from_cameras, point_closest_to_axes
+from mvsformerpp.utils.atomic import atomic_open
 
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _BOX_RE = re.compile(rf"\(\s*({_NUM})\s*[, ]\s*({_NUM})\s*[, ]\s*({_NUM})\s*\)")
@@ -70,7 +71,6 @@ def read_par(path: str | Path) -> list[tuple[str, np.ndarray, np.ndarray, np.nda
 
 def write_par(path: str | Path, cams: list[tuple[str, np.ndarray, np.ndarray, np.ndarray]]) -> None:
     """Write a par file atomically (inverse of :func:`read_par`)."""
-    from mvsformerpp.utils.atomic import atomic_open
 
     with atomic_open(path, "w") as f:
         f.write(f"{len(cams)}\n")

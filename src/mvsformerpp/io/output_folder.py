@@ -30,9 +30,12 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from PIL import Image
 
 from mvsformerpp.errors import InputError, MVSFormerError
-from mvsformerpp.io.images import find_image, read_image
+from mvsformerpp.io.colmap_model import read_model
+from mvsformerpp.io.colmap_stats import model_statistics
+from mvsformerpp.io.images import find_image, image_size, read_image
 from mvsformerpp.io.mvsnet import cam_files, read_cam
 from mvsformerpp.io.pfm import read_pfm, write_pfm
 from mvsformerpp.io.scene import Scene
@@ -257,9 +260,6 @@ class OutputFolder:
         """``images/NNNNNNNN<ext>``: the photo at the working resolution of ``plan`` (a
         :class:`~mvsformerpp.inference.resolution.ViewResize`), the pixels the network sees; kept
         when one of that size is already there."""
-        from PIL import Image
-
-        from mvsformerpp.io.images import image_size, read_image
 
         dst = self.root / IMAGES / f"{view_stem(i)}{src.suffix.lower()}"
         if dst.is_file() and not dst.is_symlink() and dst.stat().st_nlink == 1 and \
@@ -374,8 +374,6 @@ def sfm_outcome(sfm_dir: Path) -> dict[str, Any] | None:
         return _json(report)
     if not (sfm_dir / "model").is_dir():
         return None
-    from mvsformerpp.io.colmap_model import read_model
-    from mvsformerpp.io.colmap_stats import model_statistics
 
     return model_statistics(read_model(sfm_dir / "model"))
 

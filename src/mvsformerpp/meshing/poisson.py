@@ -20,6 +20,7 @@ import numpy as np
 from mvsformerpp.errors import InputError, MissingDependencyError
 from mvsformerpp.geometry.voxels import count_voxels, voxel_means
 from mvsformerpp.meshing.extract import Mesh
+from mvsformerpp.meshing.tsdf import surface_box
 
 
 @dataclass(frozen=True)
@@ -80,7 +81,6 @@ class PoissonPlan:
 
 def plan_poisson(xyz: np.ndarray, normals: np.ndarray, config: PoissonConfig = PoissonConfig()) -> PoissonPlan:
     """Which points go in, the cell, whether to thin them and the memory it needs."""
-    from mvsformerpp.meshing.tsdf import surface_box
 
     oriented = np.linalg.norm(normals, axis=1) > 0.5
     if oriented.sum() < 100:

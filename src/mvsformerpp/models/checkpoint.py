@@ -17,6 +17,8 @@ import torch
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.models.config import ModelConfig
+from mvsformerpp.models.mvsformer import MVSFormerPP
+from mvsformerpp.utils import atomic
 
 FORMAT_TAG = "mvsformerpp"
 
@@ -177,7 +179,6 @@ def load_weights(model: torch.nn.Module, sd: dict[str, torch.Tensor], path: str 
 
 def save_checkpoint(model: torch.nn.Module, path: str | Path, extra_metadata: dict | None = None) -> Path:
     """Write the weights and the model config to a safetensors file (atomically; equal content, equal bytes)."""
-    from mvsformerpp.utils.atomic import atomic_write_bytes
 
     config = getattr(model, "config", None)
     meta = {"format": FORMAT_TAG}
@@ -185,7 +186,7 @@ def save_checkpoint(model: torch.nn.Module, path: str | Path, extra_metadata: di
         meta["config"] = json.dumps(config.to_dict())
     meta.update({k: str(v) for k, v in (extra_metadata or {}).items()})
     tensors = {k: v.detach().contiguous().cpu() for k, v in model.state_dict().items()}
-    atomic_write_bytes(path, safetensors_bytes(tensors, meta))
+    atomic.atomic_write_bytes(path, safetensors_bytes(tensors, meta))
     return Path(path)
 
 
@@ -229,7 +230,6 @@ def read_safetensors(path: str | Path) -> tuple[dict[str, torch.Tensor], ModelCo
 
 def load_model(path: str | Path) -> torch.nn.Module:
     """Build the network described by a safetensors checkpoint and load its weights."""
-    from mvsformerpp.models.mvsformer import MVSFormerPP
 
     sd, config = read_safetensors(path)
     if config is None:

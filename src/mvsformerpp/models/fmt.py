@@ -12,6 +12,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from mvsformerpp.models import prepared
+from mvsformerpp.models.features import per_image
 from mvsformerpp.models.sva import LinearAttentionBlock
 
 
@@ -126,7 +127,6 @@ class FMTWithPathway(nn.Module):
         elif not prepared.lean():
             refined = self.pathway(s1, *finer)
         else:  # image by image, each result written over its input: a much smaller working set
-            from mvsformerpp.models.features import per_image
 
             refined = per_image(self.pathway, len(s1), s1, *finer, out=finer)
         return [s.reshape(B, V, *s.shape[1:]) for s in (s1, *refined)]

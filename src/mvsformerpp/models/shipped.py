@@ -18,8 +18,11 @@ from pathlib import Path
 import torch
 
 from mvsformerpp.errors import FormatError, InputError
+from mvsformerpp.models.checkpoint import load_state_dict_strict, read_safetensors, safetensors_bytes
 from mvsformerpp.models.config import architecture
+from mvsformerpp.models.mvsformer import MVSFormerPP
 from mvsformerpp.models.presets import PRESETS
+from mvsformerpp.utils.atomic import atomic_write_bytes, atomic_write_text
 
 SHIPPED_PRESET = next(name for name, preset in PRESETS.items() if preset.shipped_weights)
 """The preset the package ships trained weights for (its record in :mod:`.presets` says so)."""
@@ -85,8 +88,6 @@ def load_shipped(model: torch.nn.Module | None = None) -> torch.nn.Module:
 
     ``model`` must have the shipped preset's architecture; otherwise the error names that preset.
     """
-    from mvsformerpp.models.checkpoint import load_state_dict_strict, read_safetensors
-    from mvsformerpp.models.mvsformer import MVSFormerPP
 
     path = verify()
     sd, config = read_safetensors(path)
@@ -120,8 +121,6 @@ def write_shipped(model: torch.nn.Module, preset: str, out_dir: Path, file_name:
 
     ``info``: training facts stored in the record (command, steps, seed, wall time, summary, metrics).
     """
-    from mvsformerpp.models.checkpoint import safetensors_bytes
-    from mvsformerpp.utils.atomic import atomic_write_bytes, atomic_write_text
 
     out_dir = Path(out_dir)
     tensors = {k: (v.half() if v.is_floating_point() else v).detach().contiguous().cpu()

@@ -11,6 +11,7 @@ import numpy as np
 
 from mvsformerpp.fusion import FusionConfig
 from mvsformerpp.fusion.config import METHODS
+from mvsformerpp.io.masks import EMPTY_MASKS, read_mask
 
 # Confidence values sampled per view for the percentiles (a regular subsample bounds the memory).
 SAMPLES_PER_VIEW = 1 << 18
@@ -57,7 +58,6 @@ def explain_empty_cloud(depth_folder, config: FusionConfig, folder: Path, out_pl
     """One line: why fusion kept nothing and, where one exists, settings (tried with ``count_points``)
     that keep points."""
     if getattr(depth_folder, "mask_paths", None):
-        from mvsformerpp.io.masks import EMPTY_MASKS, read_mask
 
         if not any(read_mask(p).any() for p in depth_folder.mask_paths):
             return f"fusion kept no point: {EMPTY_MASKS} (--mask-dir {depth_folder.mask_paths[0].parent})"

@@ -25,14 +25,24 @@ from mvsformerpp.fusion import FusionConfig, iter_fused_points
 from mvsformerpp.fusion.choice import Calibration, choose_fusion
 from mvsformerpp.fusion.normals import ReferenceAttributes
 from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
+from mvsformerpp.inference.resolution import available_memory_bytes
 from mvsformerpp.io.depth_folder import DepthFolder, fusion_read_size
-from mvsformerpp.io.output_folder import CLOUD, OutputFolder, disk_full_guard, read_run_record, settings_hash
+from mvsformerpp.io.output_folder import (
+    CLOUD,
+    OutputFolder,
+    disk_full_guard,
+    read_run_record,
+    recorded_fusion_size,
+    settings_hash,
+)
 from mvsformerpp.io.ply import PlyStreamWriter, ply_vertex_count
 from mvsformerpp.models.weights import Weights, weights_for
 from mvsformerpp.pipelines.depth_maps import DepthMaps
+from mvsformerpp.pipelines.empty_cloud import explain_empty_cloud
 from mvsformerpp.pipelines.reconstruct_config import fusion_overrides
 from mvsformerpp.pipelines.run import Run
 from mvsformerpp.pipelines.run_plan import RunPlan
+from mvsformerpp.utils.output_guard import claim_output_file, writing
 
 log = logging.getLogger(__name__)
 
@@ -107,9 +117,6 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
                    max_size: int | str | None = RECORDED) -> dict:
     """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
 
-    from mvsformerpp.io.output_folder import recorded_fusion_size
-    from mvsformerpp.utils.output_guard import claim_output_file, writing
-
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("no such folder", folder)
@@ -126,7 +133,6 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
 def _fuse_streaming(folder: Path, out_ply: Path, config: FusionConfig, device: str, quiet: bool,
                     memory_gb: float | None, mask_dir, normals: bool, explain_empty: bool,
                     max_size: int | None) -> dict:
-    from mvsformerpp.inference.resolution import available_memory_bytes
 
     depths = DepthFolder(folder, mask_dir, max_size)
     scene = depths.scene
@@ -152,7 +158,6 @@ def _fuse_streaming(folder: Path, out_ply: Path, config: FusionConfig, device: s
                 point_normals, confidence = attributes(finished[0], xyz)
                 ply.write(xyz, rgb, normals=point_normals, extra={"confidence": confidence})
     if ply.count == 0 and explain_empty:
-        from mvsformerpp.pipelines.empty_cloud import explain_empty_cloud
 
         def count_points(cand: FusionConfig) -> int:
             with torch.no_grad():

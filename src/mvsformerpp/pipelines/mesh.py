@@ -16,12 +16,19 @@ from pathlib import Path
 from typing import Literal
 
 import numpy as np
+import torch
+from tqdm import tqdm
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.fusion import make_views
+from mvsformerpp.inference import resolution
+from mvsformerpp.io.depth_folder import load_depth_folder
 from mvsformerpp.io.output_folder import CLOUD, require_cloud, require_depth_maps
-from mvsformerpp.meshing.extract import Mesh
-from mvsformerpp.meshing.poisson import PoissonConfig
-from mvsformerpp.meshing.tsdf import TSDFConfig
+from mvsformerpp.io.ply import ply_colors, ply_points, read_ply, write_ply
+from mvsformerpp.meshing.extract import Mesh, marching_cubes
+from mvsformerpp.meshing.poisson import PoissonConfig, plan_poisson, screened_poisson
+from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL, TSDFConfig, integrate, plan_grid, scene_box, surface_box
+from mvsformerpp.utils.output_guard import claim_output_file, writing
 
 
 @dataclass(frozen=True)
@@ -40,8 +47,6 @@ class MeshConfig:
 
 def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = MeshConfig(), quiet: bool = False) -> Mesh:
     """Mesh the reconstruction in ``folder`` and write it to ``out_ply`` (binary PLY with vertex colours)."""
-    from mvsformerpp.io.ply import write_ply
-    from mvsformerpp.utils.output_guard import claim_output_file, writing
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -61,26 +66,16 @@ def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = Mesh
 
 
 def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
-    import torch
-    from tqdm import tqdm
-
-    from mvsformerpp.fusion import make_views
-    from mvsformerpp.inference.resolution import available_memory_bytes
-    from mvsformerpp.io.depth_folder import load_depth_folder
-    from mvsformerpp.meshing.extract import marching_cubes
-    from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL, integrate, plan_grid, scene_box, surface_box
-
     scene, depths, confs, images = load_depth_folder(require_depth_maps(folder))
     views = make_views(scene, depths, confs, images, config.device)
     box, where = scene_box(views), "the depth maps"
     cloud = folder / CLOUD
     if cloud.is_file():  # where the confident, consistent points lie: floaters and sky do not stretch it
-        from mvsformerpp.io.ply import ply_points, read_ply
 
         points = ply_points(read_ply(cloud), cloud)
         if len(points) >= 100:
             box, where = surface_box(points), "the fused cloud"
-    budget = int(0.5 * available_memory_bytes(torch.device(config.device)) / BYTES_PER_VOXEL)
+    budget = int(0.5 * resolution.available_memory_bytes(torch.device(config.device)) / BYTES_PER_VOXEL)
     tsdf = dataclasses.replace(config.tsdf, max_voxels=min(config.tsdf.max_voxels, budget))
     plan = plan_grid(views, tsdf, box)
     if not quiet:
@@ -95,12 +90,6 @@ def _tsdf_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
 
 
 def _poisson_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
-    import torch
-
-    from mvsformerpp.inference.resolution import available_memory_bytes
-    from mvsformerpp.io.ply import ply_colors, ply_points, read_ply
-    from mvsformerpp.meshing.poisson import plan_poisson, screened_poisson
-
     ply = require_cloud(folder)
     vertex = read_ply(ply)
     if not all(k in vertex for k in ("nx", "ny", "nz")):
@@ -108,7 +97,7 @@ def _poisson_mesh(folder: Path, config: MeshConfig, quiet: bool) -> Mesh:
                          "them", ply)
     xyz, normals = ply_points(vertex, ply), np.stack([vertex["nx"], vertex["ny"], vertex["nz"]], axis=1)
     plan = plan_poisson(xyz, normals, config.poisson)
-    need, have = plan.memory_bytes, available_memory_bytes(torch.device("cpu"))
+    need, have = plan.memory_bytes, resolution.available_memory_bytes(torch.device("cpu"))
     if need > have:
         raise InputError(f"screened Poisson at --depth {config.poisson.depth} needs about {need / 2**30:.1f} GB "
                          f"({plan.points:,} points, {plan.occupied:,} occupied cells), more than the "

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import dataclasses
 import logging
+import statistics
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -19,10 +20,12 @@ import torch
 from mvsformerpp.fusion.choice import FusionChoice
 from mvsformerpp.inference.fingerprint import view_fingerprints
 from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
+from mvsformerpp.inference.runner import view_cameras
+from mvsformerpp.inference.search_range import search_range, stage1_shift
 from mvsformerpp.io.mvsnet import write_mvsnet_scene
 from mvsformerpp.io.output_folder import CONFIG, VIEWS, OutputFolder, disk_full_guard
 from mvsformerpp.io.scene import Scene
-from mvsformerpp.models.presets import PRESETS
+from mvsformerpp.models.presets import PRESETS, get_config
 from mvsformerpp.models.weights import Weights
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.pipelines.run import Run
@@ -193,11 +196,6 @@ def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.devic
     over a view's sources) at the working resolution ``reconstruct`` would choose here with ``config``:
     min / median / max over the views that have a depth range and neighbours, and those whose range
     ``--min-parallax`` widens (``info``). None when no view has both."""
-    import statistics
-
-    from mvsformerpp.inference.runner import view_cameras
-    from mvsformerpp.inference.search_range import search_range, stage1_shift
-    from mvsformerpp.models.presets import get_config
 
     usable = [i for i, v in enumerate(scene.views) if v.neighbors and v.depth_min is not None
               and v.depth_max is not None and 0 < v.depth_min < v.depth_max]

@@ -16,11 +16,15 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.errors import InputError, MVSFormerError
+from mvsformerpp.io import detect
+from mvsformerpp.io.colmap import find_colmap_model, read_model, sparse_point_depths, undistort_colmap
+from mvsformerpp.io.images import image_size, list_images
+from mvsformerpp.io.masks import load_masks
 from mvsformerpp.io.output_folder import scene_fingerprint
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.pipelines.run import Run
-from mvsformerpp.pipelines.sfm import SfMConfig
+from mvsformerpp.pipelines.sfm import SfMConfig, run_sfm
 
 log = logging.getLogger(__name__)
 
@@ -52,7 +56,6 @@ def read_input(run: Run, _: None = None) -> SceneInput:
     run.folder.check_scene(fingerprint)
     scene = prepare_scene(full, config)
     if config.mask_dir is not None:
-        from mvsformerpp.io.masks import load_masks
 
         load_masks(config.mask_dir, [v.name for v in scene.views], [(v.height, v.width) for v in scene.views])
     report = run.folder.root / "sfm" / "report.json"  # written only when SfM runs: older than this run means reused
@@ -68,7 +71,6 @@ def load_input(path: str | Path, out: Path, quiet: bool = False,
     ``depth_range`` replaces every view's range (the input's depth lines are then not read at all);
     ``depth_format`` says how two-number MVSNet depth lines are read; ``sfm`` sets up structure from motion.
     """
-    from mvsformerpp.io import detect
 
     path = Path(path)
     if not path.exists():
@@ -78,14 +80,11 @@ def load_input(path: str | Path, out: Path, quiet: bool = False,
         path = path / "dense"
     layout = detect.detect_layout(path)
     if layout == "images":
-        from mvsformerpp.io.images import list_images
-        from mvsformerpp.pipelines.sfm import run_sfm
 
         photos = path if list_images(path) or not (path / "images").is_dir() else path / "images"
         dense = run_sfm(photos, out / "sfm", quiet=quiet, config=sfm)
         return detect.load_scene(dense, depth_range=depth_range)
     if layout == "colmap" and _colmap_is_distorted(path):
-        from mvsformerpp.io.colmap import undistort_colmap
 
         target = out / "undistorted"
         if not (target / "DONE").is_file():
@@ -109,8 +108,6 @@ def _first_line(e: BaseException) -> str:
 
 def _check_photo_sizes(project: Path) -> None:
     """Every photo of a distorted COLMAP model has its camera's size (undistortion needs the originals)."""
-    from mvsformerpp.io.colmap import find_colmap_model, read_model
-    from mvsformerpp.io.images import image_size
 
     model_dir, image_dir = find_colmap_model(project)
     if image_dir is None:
@@ -126,8 +123,6 @@ def _check_photo_sizes(project: Path) -> None:
 
 
 def _colmap_is_distorted(project: Path) -> bool:
-    from mvsformerpp.io.colmap import find_colmap_model, read_model
-
     model = read_model(find_colmap_model(project)[0])
     used = {im.camera_id for im in model.images.values()}
     return any(not cam.is_pinhole for cam in model.cameras.values() if cam.id in used)
@@ -181,7 +176,6 @@ def connected_subset(scene: Scene, n: int) -> list[int]:
 
 def _check_images(scene: Scene) -> None:
     """Every photo exists, is readable and has the size its camera says (header read only)."""
-    from mvsformerpp.io.images import image_size
 
     for v in scene.views:
         if not v.image_path.is_file():
@@ -218,7 +212,6 @@ def warn_if_range_misses_scene(input_path: str | Path, out: Path, config: Recons
         return  # the input has no usable ranges of its own: nothing to compare with
     lo, hi = config.depth_range
     if own.source_format == "colmap" and own.root is not None:  # the sparse points each view sees
-        from mvsformerpp.io.colmap import sparse_point_depths
 
         z = {k: d for k, d in sparse_point_depths(own.root).items() if len(d)}
         missed = [k for k, d in z.items() if np.mean((d >= lo) & (d <= hi)) < 0.5]

@@ -27,7 +27,10 @@ from pathlib import Path
 from typing import Literal
 
 from mvsformerpp.errors import InputError, MissingDependencyError
+from mvsformerpp.io.colmap_model import CAMERA_MODELS, read_model
+from mvsformerpp.io.colmap_stats import model_statistics
 from mvsformerpp.io.images import IMAGE_SUFFIXES, list_images
+from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.config_flags import flag_name
 
 log = logging.getLogger(__name__)
@@ -46,9 +49,6 @@ def import_pycolmap():
 def write_sfm_report(model_dir: Path, photos: list[str], path: Path, seconds: float | None = None) -> dict:
     """Write the outcome of SfM (registered and dropped photos, points, error, intrinsics and, given, the
     seconds it took) as JSON."""
-    from mvsformerpp.io.colmap_model import read_model
-    from mvsformerpp.io.colmap_stats import model_statistics
-    from mvsformerpp.utils.atomic import atomic_write_text
 
     stats = model_statistics(read_model(model_dir), photos)
     if seconds is not None:
@@ -90,8 +90,6 @@ class SfMConfig:
     """sequential: how many following photos each one is matched with."""
 
     def __post_init__(self) -> None:
-        from mvsformerpp.io.colmap_model import CAMERA_MODELS
-
         if self.camera_model not in CAMERA_MODELS:
             raise InputError(f"{flag_name(SfMConfig, 'camera_model')} {self.camera_model!r} is not a COLMAP camera "
                              "model; choose one of "

@@ -14,8 +14,11 @@ import yaml
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.training.config import TrainConfig, config_differences, dump_config
+from mvsformerpp.training.parallax import check_parallax
+from mvsformerpp.training.trainer import train
 from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.distributed import env_rank
+from mvsformerpp.utils.output_guard import claim_output_folder
 
 
 def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
@@ -46,9 +49,6 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: bool = False,
     The folder is claimed as every output folder is (:func:`mvsformerpp.utils.output_guard.
     claim_output_folder`): new, empty or a run folder of ``train``, holding none of ``inputs`` (the
     config file, for one) when a run starts, and locked for one run at a time."""
-    from mvsformerpp.training.parallax import check_parallax
-    from mvsformerpp.training.trainer import train
-    from mvsformerpp.utils.output_guard import claim_output_folder
 
     if datasets is None and not resume:
         check_parallax(config)  # before the run folder is touched

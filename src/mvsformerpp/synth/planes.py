@@ -24,6 +24,12 @@ import numpy as np
 import torch
 import torch.nn.functional as F
 
+from mvsformerpp.io.mvsnet import MVSNetCam, write_cam
+from mvsformerpp.io.pfm import write_pfm
+from mvsformerpp.synth.photos import procedural_images
+from mvsformerpp.synth.writer import save_png
+from mvsformerpp.utils.atomic import atomic_write_text
+
 OFFSETS = (0, 1, -1, 2, -2)
 """Camera positions along x in units of the baseline; the first is the reference."""
 
@@ -46,7 +52,6 @@ class PlaneScene:
 
 def plane_texture(size: int = 1024) -> np.ndarray:
     """The default texture: coloured 1/f noise from a seed no training run uses."""
-    from mvsformerpp.synth.photos import procedural_images
 
     return procedural_images(count=1, size=size, seed=7_000_001)[0]
 
@@ -151,10 +156,6 @@ class _TexturedPlane:
 def write_plane_scene(out_dir: str | Path, scene: PlaneScene) -> Path:
     """The scene in the MVSNet layout (images, cams, pair.txt by camera distance) with the reference's
     truth as ``depth_gt/00000000.pfm``; returns ``out_dir``."""
-    from mvsformerpp.io.mvsnet import MVSNetCam, write_cam
-    from mvsformerpp.io.pfm import write_pfm
-    from mvsformerpp.synth.writer import save_png
-    from mvsformerpp.utils.atomic import atomic_write_text
 
     out = Path(out_dir)
     for sub in ("images", "cams", "depth_gt"):

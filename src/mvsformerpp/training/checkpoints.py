@@ -21,7 +21,7 @@ from pathlib import Path
 import torch
 
 from mvsformerpp.errors import InputError, MVSFormerError
-from mvsformerpp.models.checkpoint import read_safetensors, save_checkpoint
+from mvsformerpp.models.checkpoint import load_state_dict_strict, read_safetensors, save_checkpoint
 from mvsformerpp.utils.atomic import atomic_write_bytes
 
 
@@ -115,7 +115,6 @@ def _weights_step(path: Path) -> int | None:
 def load_training_checkpoint(folder: Path, name: str, model: torch.nn.Module) -> dict:
     """Load the newest matching pair of ``NAME[.prev|.next].safetensors`` and ``NAME[.prev|.next].state.pt``
     (the same step in both) into ``model`` (strict) and return its training state."""
-    from mvsformerpp.models.checkpoint import load_state_dict_strict
 
     folder = Path(folder)
     kinds = ("", ".prev", ".next")

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 import torch
 import torch.distributed as dist
 
+from mvsformerpp.errors import InputError
 from mvsformerpp.utils.distributed import ProcessRank, env_rank
 
 
@@ -35,7 +36,6 @@ def init_distributed(device: str) -> DistInfo:
             print(f"train: device {device} (--device auto: {found} available)", flush=True)
     if device == "cuda":
         if not torch.cuda.is_available():
-            from mvsformerpp.errors import InputError
 
             raise InputError("--device cuda: no CUDA device is available (use --device cpu)")
         dev = torch.device("cuda", local if world > 1 else torch.cuda.current_device())

@@ -24,12 +24,20 @@ from __future__ import annotations
 
 import argparse
 import sys
+from pathlib import Path
 
 import numpy as np
+import torch
 
+from mvsformerpp.data.base import SampleKey, ViewData
 from mvsformerpp.errors import InputError
-from mvsformerpp.geometry.camera import plane_shift
+from mvsformerpp.geometry.camera import depth_to_points, plane_shift, project
+from mvsformerpp.io.mvsnet import read_cam
+from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.models.inputs import STAGE_SCALES
+from mvsformerpp.models.presets import get_config
+from mvsformerpp.training.config import load_config, parse_overrides
+from mvsformerpp.training.datasets import build_datasets
 
 SCALES = tuple(STAGE_SCALES.values())
 PERCENTILES = (10, 50, 90)
@@ -44,8 +52,6 @@ def plane_steps(num_hypotheses, ratios) -> np.ndarray:
 
 
 def _default_steps() -> np.ndarray:
-    from mvsformerpp.models.presets import get_config
-
     cfg = get_config("lite")
     return plane_steps(cfg.num_hypotheses, cfg.hypothesis_ratio)
 
@@ -79,9 +85,6 @@ def view_shifts(K_ref, E_ref, K_src, E_src, depth: np.ndarray, depth_min: float,
 def view_overlap(K_ref, E_ref, K_src, E_src, depth: np.ndarray, src_size: tuple[int, int]) -> float:
     """Share of the reference's valid pixels (``depth`` > 0) whose true point lies inside the source image of
     ``src_size`` = (height, width) pixels and in front of it (occlusion is not tested). NaN without valid pixels."""
-    import torch
-
-    from mvsformerpp.geometry.camera import depth_to_points, project
 
     valid = depth > 0
     if not valid.any():
@@ -118,9 +121,6 @@ def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray, np
     """(shifts [samples, 4], focal lengths [samples], overlaps [samples]) of a training config's views as
     training feeds them: evenly spaced samples of the training set, each at the next of the recipe's
     resolutions."""
-    from mvsformerpp.data.base import SampleKey
-    from mvsformerpp.models.presets import get_config
-    from mvsformerpp.training.datasets import build_datasets
 
     cfg = get_config(config.preset)
     steps = plane_steps(cfg.num_hypotheses, cfg.hypothesis_ratio)
@@ -143,11 +143,6 @@ def scene_shifts(folder, max_size: int | None = None,
     ``depth_map_NNNN.pfm`` ground truth of the cams' resolution: every view with depth is a reference, all
     others its sources (a source without a depth map has no known image size: no overlap).
     ``max_size``: the working size (longest side) the photos run at (default: the depth maps' size)."""
-    from pathlib import Path
-
-    from mvsformerpp.data.base import ViewData
-    from mvsformerpp.io.mvsnet import read_cam
-    from mvsformerpp.io.pfm import read_pfm
 
     folder = Path(folder)
     cams = sorted(folder.glob("*_cam.txt")) or sorted((folder / "cams").glob("*_cam.txt"))
@@ -227,8 +222,6 @@ def format_table(rows: dict[str, tuple]) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    from mvsformerpp.training.config import load_config, parse_overrides
-
     p = argparse.ArgumentParser(prog="python -m mvsformerpp.training.parallax", description=__doc__.split("\n\n")[0])
     p.add_argument("config", nargs="*", metavar="RECIPE_OR_CONFIG", help="recipes or YAML configs to sample")
     p.add_argument("--samples", type=int, default=48, help="training samples per recipe (default 48)")

@@ -27,6 +27,7 @@ from mvsformerpp.data.base import MVSDataset, SampleKey
 from mvsformerpp.data.samplers import MultiScaleBatchSampler
 from mvsformerpp.errors import InputError, MVSFormerError
 from mvsformerpp.evaluation.depth import DepthSums, depth_sums
+from mvsformerpp.models.checkpoint import load_checkpoint
 from mvsformerpp.models.loss import cascade_loss
 from mvsformerpp.models.mvsformer import MVSFormerPP
 from mvsformerpp.models.presets import get_config
@@ -38,6 +39,7 @@ from mvsformerpp.training.checkpoints import (
     set_rng_state,
 )
 from mvsformerpp.training.config import TrainConfig
+from mvsformerpp.training.datasets import build_datasets
 from mvsformerpp.training.logging import MetricsLog
 from mvsformerpp.training.schedule import build_scheduler
 from mvsformerpp.utils.precision import autocast
@@ -58,7 +60,6 @@ def build_training_model(config: TrainConfig) -> MVSFormerPP:
     """The preset's network, FMT xavier-initialised (from scratch) or loaded from ``init_checkpoint``; stage 1's
     transformer placed at random in training when ``cvt_random_placement``, or averaged over the inference's
     placements when ``cvt_train_shifts``."""
-    from mvsformerpp.models.checkpoint import load_checkpoint
 
     torch.manual_seed(config.seed)
     model = MVSFormerPP(get_config(config.preset))
@@ -193,7 +194,6 @@ def train(config: TrainConfig, run_dir: str | Path, resume: bool = False,
 
     ``datasets`` replaces the config's (train, validation) datasets (tests, custom data).
     """
-    from mvsformerpp.training.datasets import build_datasets
 
     run_dir = Path(run_dir)
     info = D.init_distributed(config.device)

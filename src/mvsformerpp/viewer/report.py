@@ -149,6 +149,7 @@ def view_statistics(view: ViewFiles, conf_threshold: float | None) -> dict[str, 
 
 def _weights_of_old_run(cfg: dict) -> str:
     """The weights of a run folder written before config.json named them."""
+    # (imported here: only a run written before config.json named its weights needs it, and it loads torch)
     from mvsformerpp.models.weights import weights_for
 
     if cfg.get("checkpoint"):
