@@ -7,10 +7,9 @@ needs torch, on first use of its names.
 
 from __future__ import annotations
 
-import importlib
-
 from mvsformerpp.fusion.choice import FusionChoice, choose_fusion
 from mvsformerpp.fusion.config import METHODS, PRESETS, FusionConfig, FusionMethod, get_config
+from mvsformerpp.utils.lazy import lazy_names
 
 __all__ = ["METHODS", "FusionChoice", "FusionConfig", "FusionMethod", "FusionView", "PRESETS", "choose_fusion",
            "fuse_depth_maps", "fuse_views", "get_config", "iter_fused_points", "make_view", "make_views"]
@@ -19,11 +18,4 @@ _LAZY = {"FusionView": "core", "fuse_views": "core", "iter_fused_points": "core"
          "make_views": "views", "fuse_depth_maps": "views"}
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"mvsformerpp.fusion.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())

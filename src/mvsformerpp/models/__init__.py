@@ -7,10 +7,9 @@ use of their names.
 
 from __future__ import annotations
 
-import importlib
-
 from mvsformerpp.models.config import ModelConfig
 from mvsformerpp.models.presets import PRESETS, get_config
+from mvsformerpp.utils.lazy import lazy_names
 
 __all__ = ["MVSFormerPP", "ModelConfig", "PRESETS", "build_model", "get_config", "load_checkpoint", "load_model",
            "save_checkpoint"]
@@ -19,11 +18,4 @@ _LAZY = {"MVSFormerPP": "mvsformer", "build_model": "mvsformer", "load_checkpoin
          "load_model": "checkpoint", "save_checkpoint": "checkpoint"}
 
 
-def __getattr__(name: str):
-    if name in _LAZY:
-        return getattr(importlib.import_module(f"mvsformerpp.models.{_LAZY[name]}"), name)
-    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-
-
-def __dir__() -> list[str]:
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_names(__name__, _LAZY, globals())

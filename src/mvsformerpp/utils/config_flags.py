@@ -185,29 +185,25 @@ def plain_value(value: Any, hint: Any, what: str) -> Any:
         if len(value) != len(args):
             raise InputError(f"{what} needs {len(args)} values, got {value!r}")
         return tuple(plain_value(v, a, what) for v, a in zip(value, args))
-    if hint is dict or origin is dict:
-        if not isinstance(value, dict):
-            raise InputError(f"{what} needs a mapping, got {value!r}")
-        return dict(value)
-    if hint is bool:
-        if not isinstance(value, bool):
-            raise InputError(f"{what} needs true/false, got {value!r}")
+    if hint is float and isinstance(value, str):  # YAML 1.1 reads 1e-4 (no dot) as a string
+        try:
+            return float(value)
+        except ValueError:
+            pass
+    plain = _PLAIN.get(dict if origin is dict else hint)
+    if plain is None:
         return value
-    if hint is int:
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise InputError(f"{what} needs an integer, got {value!r}")
-        return value
-    if hint is float:
-        if isinstance(value, str):  # YAML 1.1 reads 1e-4 (no dot) as a string
-            try:
-                return float(value)
-            except ValueError:
-                pass
-        if isinstance(value, bool) or not isinstance(value, (int, float)):
-            raise InputError(f"{what} needs a number, got {value!r}")
-        return float(value)
-    if hint is str:
-        if not isinstance(value, str):
-            raise InputError(f"{what} needs a string, got {value!r}")
-        return value
-    return value
+    words, accepts, convert = plain
+    if not accepts(value):
+        raise InputError(f"{what} needs {words}, got {value!r}")
+    return convert(value)
+
+
+_PLAIN = {
+    dict: ("a mapping", lambda v: isinstance(v, dict), dict),
+    bool: ("true/false", lambda v: isinstance(v, bool), bool),
+    int: ("an integer", lambda v: isinstance(v, int) and not isinstance(v, bool), int),
+    float: ("a number", lambda v: isinstance(v, (int, float)) and not isinstance(v, bool), float),
+    str: ("a string", lambda v: isinstance(v, str), str),
+}
+"""Plain field types: (what a value must be, in words; the test; the conversion)."""
