@@ -441,7 +441,7 @@ CASES: list[Case] = [
     Case("eval-cloud-error-ply-disk-full", "the disk fills up while evaluate writes --error-ply",
          lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "0.1",
                     "--error-ply", str(d / "err.ply")], "No space left",
-         patch=lambda mp: _full_disk(mp, "mvsformerpp.evaluation.visualize", "write_error_ply")),
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.evaluation.visualize", "write_ply")),
     Case("eval-depth-threshold-zero", "evaluate depth --thresholds 0",
          lambda d: ["evaluate", "depth", str(d), str(d), "--thresholds", "0"], "--thresholds"),
     Case("eval-depth-interval-negative", "evaluate depth --interval -1",

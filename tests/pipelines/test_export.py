@@ -73,7 +73,7 @@ def test_export_refuses_a_non_empty_folder(synth_run, tmp_path, capsys):
     assert (ws / "keep.txt").read_text() == "mine"
     # --overwrite replaces an earlier export, never a folder of the user's own files
     assert main(["export", str(synth_run), "--to", "colmap", str(ws), "--overwrite", "--quiet"]) == 2
-    assert "replaces only an empty folder or a COLMAP workspace" in capsys.readouterr().err
+    assert "replaces only an empty folder or one that mvsformerpp export wrote" in capsys.readouterr().err
     assert (ws / "keep.txt").read_text() == "mine"
     ws2 = tmp_path / "ws2"
     assert main(["export", str(synth_run), "--to", "colmap", str(ws2), "--quiet"]) == 0
@@ -94,7 +94,7 @@ def test_overwrite_never_deletes_the_reconstruction_or_the_photos(synth_run, tmp
     for p in (parent / "images", parent / "sparse", parent / "stereo"):
         p.mkdir()  # looks like a workspace, and it holds the reconstruction
     assert main(["export", str(out), "--to", "colmap", str(parent), "--overwrite", "--quiet"]) == 2
-    assert "holds the reconstruction" in capsys.readouterr().err and (out / "depth_est").is_dir()
+    assert f"contains the input {out}" in capsys.readouterr().err and (out / "depth_est").is_dir()
     photos = tmp_path / "shoot" / "images"  # the photos the run read, linked from OUT/images as reconstruct does
     photos.mkdir(parents=True)
     for link in sorted((out / "images").iterdir()):
@@ -104,5 +104,5 @@ def test_overwrite_never_deletes_the_reconstruction_or_the_photos(synth_run, tmp
     for sub in ("sparse", "stereo"):  # their folder looks like a workspace (an earlier export read back)
         (photos.parent / sub).mkdir()
     assert main(["export", str(out), "--to", "colmap", str(photos.parent), "--overwrite", "--quiet"]) == 2
-    assert "holds the input photos" in capsys.readouterr().err
+    assert f"contains the input {photos}" in capsys.readouterr().err
     assert photos.is_dir() and any(photos.iterdir())

@@ -61,15 +61,24 @@ def _refused_code(message: str) -> bool:
     return bool(_REFUSED.search(message)) or (operand is not None and int(operand.group(1)) in _CODE_OPCODES)
 
 
+def require_checkpoint_file(path: str | Path) -> Path:
+    """``path`` as a checkpoint file that exists; else an :class:`InputError` that says what it is instead."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError("this is a folder, not a checkpoint file; give the weights file itself (.pth, .pt, .ckpt or "
+                         ".safetensors; a training run keeps checkpoints/last.safetensors)", path)
+    if not path.is_file():
+        raise InputError("checkpoint file not found", path)
+    return path
+
+
 def read_torch_file(path: str | Path) -> object:
     """``torch.load(weights_only=True)`` on the CPU; the names of :data:`RECORDED_GLOBALS` load as inert records.
 
     A file that holds any other Python object (a pickled function call, a class from elsewhere, a
     dotted attribute path) is refused with :class:`InputError` before anything of it runs.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("checkpoint file not found", path)
+    path = require_checkpoint_file(path)
     records = [(PickledRecord, name) for name in RECORDED_GLOBALS]
     try:
         with torch.serialization.safe_globals(records):
@@ -151,7 +160,7 @@ def load_checkpoint(model: torch.nn.Module, path: str | Path) -> torch.nn.Module
     ``dinov2_vitb14_pretrain.pth`` (loaded into the backbone only), or a ``.safetensors`` file written
     by :func:`save_checkpoint`.
     """
-    path = Path(path)
+    path = require_checkpoint_file(path)
     if path.suffix == ".safetensors":
         sd, _ = read_safetensors(path)
     else:

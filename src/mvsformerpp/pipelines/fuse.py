@@ -184,11 +184,14 @@ def view_cache_bytes(pixels_per_view: int, num_sources: int, config: FusionConfi
     (The chunk size stays the configured one: it does not change the points, but it changes how the
     floating-point work is batched, and streaming gives the in-memory fusion's points bit for bit.)
     """
+    from mvsformerpp.inference.resolution import human_size
+
     need = minimum_memory_bytes(pixels_per_view, num_sources, config)
     if memory_bytes < need:
         raise InputError(
             f"--memory-gb {memory_bytes / 2**30:.3g} is too small for fusion: one reference view and its "
-            f"{num_sources} source views need {need / 2**30:.3f} GB; raise --memory-gb or lower --num-src-views")
+            f"{num_sources} source views need about {human_size(need)}; raise --memory-gb to at least "
+            f"{need / 2**30:.2g} or lower --num-src-views")
     return int(memory_bytes - working_memory_bytes(pixels_per_view, num_sources, config))
 
 
@@ -212,9 +215,9 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
     than this (longer side, pixels) at this size (:class:`DepthFolder`); None: at their stored size;
     ``"recorded"``: at the working resolution a ``reconstruct`` run of ``folder`` recorded (else stored).
 
-    ``out_ply`` is replaced only when it is new or a PLY file, and not while another run writes its folder
-    (:func:`~mvsformerpp.utils.output_guard.claim_output_file`); a full disk or a read-only place is one
-    clear error, and an unfinished cloud never replaces the old one.
+    ``out_ply`` is replaced only when it is new or a point cloud this package wrote, and not while another
+    run writes it or its folder (:func:`~mvsformerpp.utils.output_guard.claim_output_file`); a full disk or a
+    read-only place is one clear error, and an unfinished cloud never replaces the old one.
     """
     return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
                           max_size)["ply"]
@@ -238,7 +241,8 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     """:func:`fuse`, returning ``{"ply", "points", "seconds", "view_cache": {hits, misses, ...}}``."""
 
     from mvsformerpp.io.output_folder import recorded_fusion_size
-    from mvsformerpp.utils.output_guard import claim_output_file, writing
+    from mvsformerpp.utils.file_kinds import POINT_CLOUD
+    from mvsformerpp.utils.output_guard import claim_output_file
 
     folder = Path(folder)
     if not folder.is_dir():
@@ -249,7 +253,7 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
         raise InputError(f"--memory-gb must be a positive number of GB, got {memory_gb}")
     if max_size == RECORDED:
         max_size = recorded_fusion_size(folder)
-    with claim_output_file(out_ply, b"ply", "PLY"), writing(out_ply):
+    with claim_output_file(out_ply, POINT_CLOUD, [mask_dir] if mask_dir is not None else [], run=folder):
         return _fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
                                max_size)
 

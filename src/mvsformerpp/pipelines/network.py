@@ -20,11 +20,10 @@ def build_network(config: ReconstructConfig) -> torch.nn.Module:
     the shipped default weights (``lite``), else a seeded random initialisation."""
     import mvsformerpp
     from mvsformerpp.models import shipped
+    from mvsformerpp.models.checkpoint import require_checkpoint_file
 
     if config.checkpoint is not None:
-        ckpt = Path(config.checkpoint)
-        if not ckpt.is_file():
-            raise InputError("checkpoint file not found", ckpt)
+        ckpt = require_checkpoint_file(config.checkpoint)
         _check_stored_preset(ckpt, config.preset)
     torch.manual_seed(config.seed)
     model = mvsformerpp.build_model(config.preset, **_model_overrides(config))

@@ -46,17 +46,20 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     the views out (:mod:`mvsformerpp.inference.ranks`), rank 0 holds the folder for them and fuses.
     """
     from mvsformerpp.inference.ranks import ranks_from_env
+    from mvsformerpp.models.checkpoint import require_checkpoint_file
     from mvsformerpp.utils.output_guard import claim_output_folder
 
     config = config or ReconstructConfig()
     if not Path(input_path).exists():
         raise InputError("no such file or folder", input_path)
-    if config.checkpoint is not None and model is None and not Path(config.checkpoint).is_file():
-        raise InputError("checkpoint file not found", config.checkpoint)
+    if config.checkpoint is not None and model is None:
+        require_checkpoint_file(config.checkpoint)
     _device(config.device)
     ranks = ranks_from_env(config.device)
     try:
-        with claim_output_folder(out_dir, [input_path], "reconstruct"):
+        given = Path(input_path)
+        reads = [given if given.is_dir() else given.parent, *([config.mask_dir] if config.mask_dir else [])]
+        with claim_output_folder(out_dir, reads, "reconstruct"):
             return _run(input_path, out_dir, config, quiet or not ranks.is_main, model, ranks)
     finally:
         ranks.close()
