@@ -100,9 +100,10 @@ def main(argv: list[str] | None = None) -> int:
         return 130
 
 
-def _shortened(name: str | bytes, keep: int = 60) -> str:
+def _shortened(name: str | bytes, keep: int = 20) -> str:
+    """A path with each over-long name cut to its first ``keep`` characters."""
     name = name if isinstance(name, str) else name.decode(errors="surrogateescape")
-    return name if len(name) <= 2 * keep else f"{name[:keep]}...{name[-keep:]}"
+    return "/".join(part if len(part) <= 2 * keep else f"{part[:keep]}..." for part in name.split("/"))
 
 
 def entry() -> int:

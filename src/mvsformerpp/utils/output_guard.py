@@ -60,11 +60,12 @@ def _inside(a: Path, b: Path) -> bool:
 
 
 def _name_max(path: Path) -> int:
-    here = path.absolute()
-    while not here.exists() and here != here.parent:
+    """The longest name the file system of ``path`` (its nearest existing folder) allows."""
+    here = path.absolute().parent
+    while not os.path.isdir(here) and here != here.parent:  # (isdir: False, not an error, for any bad path)
         here = here.parent
     try:
-        return os.pathconf(here if here.is_dir() else here.parent, "PC_NAME_MAX")
+        return os.pathconf(here, "PC_NAME_MAX")
     except (OSError, ValueError):
         return 255
 
