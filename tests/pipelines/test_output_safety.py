@@ -216,3 +216,29 @@ def test_no_command_overwrites_a_file_of_another_kind(synth_run, tmp_path, capsy
     check_replaceable(tmp_path / "m.ply", MESH)
     with pytest.raises(InputError, match="did not write as a PLY mesh"):  # a point cloud is not a mesh
         check_replaceable(synth_run / "fused.ply", MESH)
+
+
+def test_two_fuse_runs_into_one_file_of_a_plain_folder(synth_run, tmp_path, capsys):
+    """The second stops at once and names the first (a lock beside the file, as no run folder holds it); the
+    first's temporary is left alone; killed, the first leaves the next run nothing to trip over."""
+    from test_input_checks import HANG_ON_FSYNC
+
+    out = tmp_path / "plain" / "f.ply"
+    full = tmp_path / "full.ply"
+    assert main(["fuse", str(synth_run), "-o", str(full), "--quiet"]) == 0
+    signal_file = tmp_path / "writing"
+    first = subprocess.Popen([sys.executable, "-c", HANG_ON_FSYNC, str(signal_file), "fuse", str(synth_run), "-o",
+                              str(out), "--quiet"])
+    deadline = time.monotonic() + 120
+    while not signal_file.exists():
+        assert first.poll() is None and time.monotonic() < deadline, "the first run did not start"
+        time.sleep(0.02)
+    assert main(["fuse", str(synth_run), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"another mvsformerpp run (pid {first.pid} on " in err and "is writing this file" in err, err
+    assert list(out.parent.glob(".f.ply.*.tmp"))  # (the first's cloud in progress, untouched)
+    first.kill()
+    first.wait()
+    assert main(["fuse", str(synth_run), "-o", str(out), "--quiet"]) == 0
+    assert out.read_bytes() == full.read_bytes()
+    assert [p.name for p in out.parent.iterdir()] == ["f.ply"]  # no temporary, no lock left
