@@ -392,6 +392,22 @@ def _read_only_place(monkeypatch, suffix: str) -> None:
                         else real_open(path, *a, **k))
 
 
+def mesh(*flags: str, fused: bool = False) -> Callable[[Path], list[str]]:
+    """A case's command: ``mesh OUT -o DIR/m.ply FLAGS`` on depth maps, or with ``fused`` on a reconstruction with its
+    fused cloud."""
+    return lambda d: ["mesh", str(reconstruction(d) if fused else fused_folder(d)), "-o", str(d / "m.ply"), *flags,
+                      "--quiet"]
+
+
+def into_scene(command: str, *where: str) -> Callable[[Path], list[str]]:
+    """A case's command: ``COMMAND SCENE -o SCENE/WHERE...`` on a scene folder with depth maps (fuse, mesh, report)."""
+    def build(d: Path) -> list[str]:
+        s = fused_folder(d)
+        return [command, str(s), "-o", str(s.joinpath(*where)), *(["--quiet"] if command != "report" else [])]
+
+    return build
+
+
 def train_set(*values: str) -> Callable[[Path], list[str]]:
     """A case's command: ``train synthetic -o DIR/run --set VALUE ...``."""
     return lambda d: ["train", "synthetic", "-o", str(d / "run"), *[a for v in values for a in ("--set", v)]]
@@ -509,15 +525,12 @@ CASES: list[Case] = [
     Case("fuse-disk-full", "the disk fills up while fuse writes the cloud",
          lambda d: ["fuse", str(fused_folder(d)), "--quiet"], "No space left",
          patch=lambda mp: _full_disk(mp, "mvsformerpp.io.ply", "PlyStreamWriter.write")),
-    Case("fuse-output-is-photo", "fuse -o pointing at an input photo",
-         lambda d: (lambda s: ["fuse", str(s), "-o", str(s / "images" / "00000000.png"), "--quiet"])(fused_folder(d)),
+    Case("fuse-output-is-photo", "fuse -o pointing at an input photo", into_scene("fuse", "images", "00000000.png"),
          "not a PLY"),
-    Case("mesh-output-is-photo", "mesh -o pointing at an input photo",
-         lambda d: (lambda s: ["mesh", str(s), "-o", str(s / "images" / "00000000.png"), "--quiet"])(fused_folder(d)),
+    Case("mesh-output-is-photo", "mesh -o pointing at an input photo", into_scene("mesh", "images", "00000000.png"),
          "not a PLY mesh"),
     Case("report-output-is-photo", "report -o pointing at an input photo",
-         lambda d: (lambda s: ["report", str(s), "-o", str(s / "images" / "00000000.png")])(fused_folder(d)),
-         "not an HTML report"),
+         into_scene("report", "images", "00000000.png"), "not an HTML report"),
     Case("eval-json-is-photo", "evaluate --json pointing at a photo",
          lambda d: (lambda s: ["evaluate", "cloud", str(s / "fused.ply"), str(s / "fused.ply"), "--threshold", "1",
                                "--json", str(s / "images" / "00000000.png")])(fused_folder(d)),
@@ -697,14 +710,11 @@ CASES: list[Case] = [
     Case("export-onto-symlink", "export --overwrite onto a symbolic link to a folder", _export_onto_symlink,
          "symbolic link"),
     # the output guard, round 4: tracebacks and hangs
-    Case("fuse-output-under-file", "fuse -o SCENE/pair.txt/x.ply",
-         lambda d: (lambda s: ["fuse", str(s), "-o", str(s / "pair.txt" / "x.ply"), "--quiet"])(fused_folder(d)),
+    Case("fuse-output-under-file", "fuse -o SCENE/pair.txt/x.ply", into_scene("fuse", "pair.txt", "x.ply"),
          "which is a file, not a folder"),
-    Case("mesh-output-under-file", "mesh -o SCENE/pair.txt/x.ply",
-         lambda d: (lambda s: ["mesh", str(s), "-o", str(s / "pair.txt" / "x.ply"), "--quiet"])(fused_folder(d)),
+    Case("mesh-output-under-file", "mesh -o SCENE/pair.txt/x.ply", into_scene("mesh", "pair.txt", "x.ply"),
          "which is a file, not a folder"),
-    Case("report-output-under-file", "report -o SCENE/pair.txt/x.html",
-         lambda d: (lambda s: ["report", str(s), "-o", str(s / "pair.txt" / "x.html")])(fused_folder(d)),
+    Case("report-output-under-file", "report -o SCENE/pair.txt/x.html", into_scene("report", "pair.txt", "x.html"),
          "which is a file, not a folder"),
     Case("export-target-under-file", "export OUT --to colmap FILE/ws",
          lambda d: ["export", str(fused_folder(d)), "--to", "colmap", str(_file(d, "f") / "ws"), "--quiet"],
@@ -717,15 +727,12 @@ CASES: list[Case] = [
          "304 bytes long"),
     Case("input-name-too-long", "info on a path whose name has 300 bytes",
          lambda d: ["info", str(d / ("a" * 300))], "longer than the file system allows"),
-    Case("mesh-truncation-huge", "mesh --truncation 1e9 (a negative tensor size)",
-         lambda d: ["mesh", str(fused_folder(d)), "-o", str(d / "m.ply"), "--truncation", "1e9", "--quiet"],
+    Case("mesh-truncation-huge", "mesh --truncation 1e9 (a negative tensor size)", mesh("--truncation", "1e9"),
          "--truncation"),
     Case("mesh-threads-huge", "mesh --method poisson --threads 100000 (a crash in MeshLab)",
-         lambda d: ["mesh", str(reconstruction(d)), "-o", str(d / "m.ply"), "--method", "poisson", "--threads",
-                    "100000", "--quiet"], "--threads must be 1 .. CORES"),
+         mesh("--method", "poisson", "--threads", "100000", fused=True), "--threads must be 1 .. CORES"),
     Case("mesh-threads-more-than-cores", "mesh --method poisson --threads 1000 (hung, its threads spinning)",
-         lambda d: ["mesh", str(reconstruction(d)), "-o", str(d / "m.ply"), "--method", "poisson", "--threads",
-                    "1000", "--quiet"], "--threads must be 1 .. CORES"),
+         mesh("--method", "poisson", "--threads", "1000", fused=True), "--threads must be 1 .. CORES"),
     Case("mesh-poisson-coincident-points", "mesh --method poisson on a fused cloud whose points all coincide",
          _coincident_cloud, "all lie at one place"),
     Case("recon-depth-range-extreme", "--depth-range 1e-300 1e300",
@@ -742,12 +749,10 @@ CASES: list[Case] = [
     # the output guard, round 4: unclear messages
     Case("fuse-memory-tiny", "fuse --memory-gb 1e-9", lambda d: ["fuse", str(fused_folder(d)), "--memory-gb", "1e-9"],
          "need about [0-9]+ MB; raise --memory-gb to at least"),
-    Case("mesh-voxel-huge", "mesh --voxel 1e6 (larger than the scene)",
-         lambda d: ["mesh", str(fused_folder(d)), "-o", str(d / "m.ply"), "--voxel", "1e6", "--quiet"],
+    Case("mesh-voxel-huge", "mesh --voxel 1e6 (larger than the scene)", mesh("--voxel", "1e6"),
          "larger than an eighth of the scene box"),
     Case("mesh-trim-everything", "mesh --method poisson --trim 99.999",
-         lambda d: ["mesh", str(reconstruction(d)), "-o", str(d / "m.ply"), "--method", "poisson", "--trim",
-                    "99.999", "--quiet"], "--trim"),
+         mesh("--method", "poisson", "--trim", "99.999", fused=True), "--trim"),
     Case("eval-depth-masks-black", "evaluate depth --mask-dir with all-black masks", _black_depth_masks,
          "the masks mark no pixel"),
     Case("report-read-only", "report into a read-only folder (named by the report, not its temporary)",

@@ -15,11 +15,9 @@ from mvsformerpp.utils.file_kinds import PLY_MARKER
 from mvsformerpp.utils.interrupts import deferred_interrupt
 from mvsformerpp.utils.output_guard import (
     MARKER,
-    FolderBusyError,
     check_replaceable,
     child,
     claim_output_file,
-    folder_lock,
 )
 from mvsformerpp.utils.output_tree import claim_output_tree
 
@@ -129,31 +127,6 @@ def test_a_file_claim_cleans_what_a_killed_run_left_and_leaves_nothing(tmp_path)
     assert not (tmp_path / "a").exists()  # the folders it made for nothing are gone
 
 
-def test_a_run_folder_holds_one_lock_for_all_its_files(tmp_path):
-    import multiprocessing
-
-    run = tmp_path / "run"
-    run.mkdir()
-    (run / MARKER).write_text(json.dumps({"written_by": "mvsformerpp reconstruct"}))
-    ready, done = multiprocessing.Event(), multiprocessing.Event()
-
-    def hold():
-        with folder_lock(run):
-            ready.set()
-            done.wait(30)
-
-    holder = multiprocessing.get_context("fork").Process(target=hold)
-    holder.start()
-    try:
-        assert ready.wait(30)
-        with pytest.raises(FolderBusyError, match=f"pid {holder.pid} .*is writing to this folder"):
-            with claim_output_file(run / "mesh.ply", K.MESH):
-                pass
-    finally:
-        done.set()
-        holder.join(30)
-
-
 def _workspace(path, text):
     path.mkdir()
     (path / MARKER).write_text(json.dumps({"written_by": "mvsformerpp export"}))
@@ -184,3 +157,46 @@ def test_a_replacement_killed_after_the_new_folder_went_in_finishes(tmp_path):
     with pytest.raises(RuntimeError, match="stop"), claim_output_tree(target, "export", overwrite=True):
         raise RuntimeError("stop")  # (a failed export: the workspace in place stays)
     assert (target / "what.txt").read_text() == "new" and sorted(p.name for p in tmp_path.iterdir()) == ["ws"]
+
+
+def _python_writers(run, scene_dir):
+    """Every Python function of the package that writes an output, aimed at ``target`` (a path)."""
+    import mvsformerpp
+    from mvsformerpp.evaluation.tnt_submission import package_tnt_submission
+    from mvsformerpp.evaluation.visualize import plot_pr_curves, write_error_ply
+    from mvsformerpp.pipelines.export import export_colmap
+    from mvsformerpp.pipelines.mesh import make_mesh
+    from mvsformerpp.pipelines.train import run_training
+    from mvsformerpp.synth import generate_dataset, generate_scene
+    from mvsformerpp.viewer.report import write_report
+
+    from ..training.train_utils import tiny_config
+
+    points = np.zeros((3, 3))
+    curve = {k: np.linspace(0.1, 1, 3) for k in ("thresholds", "precision", "recall", "f_score")}
+    return {
+        "reconstruct": lambda t: mvsformerpp.reconstruct(scene_dir, t, quiet=True),
+        "fuse": lambda t: mvsformerpp.fuse(run, t / "c.ply", quiet=True),
+        "make_mesh": lambda t: make_mesh(run, t / "m.ply", quiet=True),
+        "write_report": lambda t: write_report(run, t / "r.html"),
+        "export_colmap": lambda t: export_colmap(run, t, quiet=True),
+        "generate_scene": lambda t: generate_scene(t, num_views=2, height=32, width=32),
+        "generate_dataset": lambda t: generate_dataset(t, 2, num_views=2, height=32, width=32),
+        "package_tnt_submission": lambda t: package_tnt_submission(t, {"Barn": (run / "fused.ply", np.eye(4)[None])}),
+        "write_error_ply": lambda t: write_error_ply(t / "e.ply", points, np.zeros(3), 1.0),
+        "plot_pr_curves": lambda t: plot_pr_curves(t / "p.png", curve),
+        "run_training": lambda t: run_training(tiny_config(max_steps=1), t),
+    }
+
+
+@pytest.mark.parametrize("writer", ["reconstruct", "fuse", "make_mesh", "write_report", "export_colmap",
+                                    "generate_scene", "generate_dataset", "package_tnt_submission", "write_error_ply",
+                                    "plot_pr_curves", "run_training"])
+def test_python_writers_are_guarded_as_the_commands_are(synth_run, writer):
+    """The guard sits in the functions, not the command line: aimed into the installed package, each refuses."""
+    from mvsformerpp.utils.output_guard import package_root
+
+    target = package_root() / "assets" / "not_here"
+    with pytest.raises(InputError, match="inside the installed mvsformerpp package"):
+        _python_writers(synth_run, synth_run.parent / "scene")[writer](target)
+    assert not target.exists()
