@@ -833,8 +833,20 @@ Other failures the suite provokes, beyond one-line messages:
   resumed run's `last.safetensors` and `last.state.pt` (optimiser, schedule, random state) are byte for byte
   the uninterrupted run's). A kill at any instant of saving a checkpoint leaves a pair to resume from
   (`tests/training/test_checkpoints.py`).
-- Two processes writing into one folder: the second stops and names the first's pid and host
-  (`tests/pipelines/test_output_safety.py`).
+- `synth` killed (`kill -9`, Ctrl-C) or stopped by a full disk, then the same command: the set is completed,
+  byte for byte the uninterrupted one (`tests/synth/test_synth_resume.py`). `export --overwrite` killed before
+  the old workspace is renamed aside, between that and renaming the new one in, or before deleting the old
+  one: the same command puts the old one back or finishes, and leaves the new workspace and no temporary
+  (`tests/pipelines/test_export.py`; the first and last instants in the slow suite). Ctrl-C while `train` saves
+  a checkpoint: the save ends whole, the run stops with exit code 130, `--resume` goes on
+  (`tests/training/test_train.py`).
+- Two processes writing into one folder, or into one file of a folder of the user's (`fuse -o f.ply`), or
+  two `synth` runs into one folder: the second stops and names the first's pid and host
+  (`tests/pipelines/test_output_safety.py`, `tests/synth/test_synth_resume.py`).
+- Every command that writes, against one table of places it must not write (inside the installed package,
+  an input, a file of another run or kind, a file of the user's of the same format, under a file, a name
+  over 255 bytes, a folder for a file and a file for a folder, a symbolic link to an input): one `error:`
+  line and not a byte changed (`tests/cli/test_forbidden_targets.py`; the rules: `docs/output-guard.md`).
 - Checkpoints crafted to run code when unpickled (a pickled `os.system` call, alone or inside an
   official-layout dict; torch zip files whose pickle walks `_rebuild_tensor_v2.__builtins__.get` to
   `eval` by a protocol-4 dotted name; a dotted tail on an admitted name): each is shown to run under

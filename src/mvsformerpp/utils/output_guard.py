@@ -74,13 +74,13 @@ def check_output_path(path: str | Path, flag: str = "-o", room: int = 0) -> Path
     """Refuse an output path that cannot be written, before any work: a name longer than the file system allows
     (less ``room`` for a temporary name), a path under a file, or a place inside the installed package."""
     path = Path(path)
-    limit = _name_max(path) - room
-    for part in path.parts:
-        size = len(os.fsencode(part))
-        if size > limit:
-            more = f" ({room} of the file system's {limit + room} kept for the temporary name)" if room else ""
+    name_max = _name_max(path)
+    for k, part in enumerate(path.parts):
+        size, kept = len(os.fsencode(part)), room if k == len(path.parts) - 1 else 0
+        if size > name_max - kept:
+            more = f" ({kept} of the file system's {name_max} kept for the temporary name)" if kept else ""
             raise InputError(f"{flag}: a name in the path is {size} bytes long ({part[:20]}...), more than the "
-                             f"{limit} allowed{more}; choose a shorter name")
+                             f"{name_max - kept} allowed{more}; choose a shorter name")
     here = path.absolute().parent
     while not os.path.lexists(here) and here != here.parent:
         here = here.parent

@@ -55,34 +55,47 @@ def claim_output_tree(target: str | Path, kind: str, inputs: Sequence[str | Path
                          target)
     check_not_input(target, inputs, flag)
     parent = target.parent
-    make_folders(parent, flag)
+    made = make_folders(parent, flag)
 
     def owned(path: Path) -> bool:
         return written_by(path) == f"mvsformerpp {kind}" or (recognise is not None and recognise(path))
 
-    with hold_lock(parent / f".{target.name}.lock", target, "folder", remove=True):
-        _recover(target, kind, owned)
-        if os.path.lexists(target):
-            if not target.is_dir():
-                raise InputError(f"the output exists and is not a folder; choose another {flag}", target)
-            if any(target.iterdir()):
-                if not overwrite:
-                    raise InputError(f"the output folder exists and is not empty; choose another {flag} or pass "
-                                     f"{overwrite_flag}", target)
-                if not owned(target):
-                    raise InputError(f"{overwrite_flag} replaces only an empty folder or one that mvsformerpp {kind} "
-                                     f"wrote, and this is neither; choose another {flag}", target)
-        staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
-        try:
-            os.chmod(staging, 0o777 & ~current_umask())
-            (staging / MARKER).write_text(json.dumps({"written_by": f"mvsformerpp {kind}"}) + "\n")
-            with writing(target, staged=staging, what="folder"):
-                yield staging
-                with deferred_interrupt():
-                    _swap(staging, target)
-        except BaseException:
-            shutil.rmtree(staging, ignore_errors=True)
-            raise
+    try:
+        with hold_lock(parent / f".{target.name}.lock", target, "folder", remove=True):
+            _recover(target, kind, owned)
+            _check_replaceable(target, owned, overwrite, flag, overwrite_flag, kind)
+            with writing(target, what="folder"):
+                staging = Path(tempfile.mkdtemp(prefix=f".{target.name}.", suffix=".tmp", dir=parent))
+            try:
+                with writing(target, staged=staging, what="folder"):
+                    os.chmod(staging, 0o777 & ~current_umask())
+                    (staging / MARKER).write_text(json.dumps({"written_by": f"mvsformerpp {kind}"}) + "\n")
+                    yield staging
+                    with deferred_interrupt():
+                        _swap(staging, target)
+            except BaseException:
+                shutil.rmtree(staging, ignore_errors=True)
+                raise
+    except BaseException:
+        for d in reversed(made):  # folders made for a target that did not come
+            with contextlib.suppress(OSError):
+                d.rmdir()
+        raise
+
+
+def _check_replaceable(target: Path, owned: Callable[[Path], bool], overwrite: bool, flag: str, overwrite_flag: str,
+                       kind: str) -> None:
+    if not os.path.lexists(target):
+        return
+    if not target.is_dir():
+        raise InputError(f"the output exists and is not a folder; choose another {flag}", target)
+    if any(target.iterdir()):
+        if not overwrite:
+            raise InputError(f"the output folder exists and is not empty; choose another {flag} or pass "
+                             f"{overwrite_flag}", target)
+        if not owned(target):
+            raise InputError(f"{overwrite_flag} replaces only an empty folder or one that mvsformerpp {kind} wrote, "
+                             f"and this is neither; choose another {flag}", target)
 
 
 def _swap(staging: Path, target: Path) -> None:
