@@ -748,7 +748,7 @@ CASES: list[Case] = [
          "not a folder"),
     # the output guard, round 4: unclear messages
     Case("fuse-memory-tiny", "fuse --memory-gb 1e-9", lambda d: ["fuse", str(fused_folder(d)), "--memory-gb", "1e-9"],
-         "need about [0-9]+ MB; raise --memory-gb to at least"),
+         "need about [0-9]+ [KM]B; raise --memory-gb to at least"),
     Case("mesh-voxel-huge", "mesh --voxel 1e6 (larger than the scene)", mesh("--voxel", "1e6"),
          "larger than an eighth of the scene box"),
     Case("mesh-trim-everything", "mesh --method poisson --trim 99.999",

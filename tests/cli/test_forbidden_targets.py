@@ -207,10 +207,12 @@ PAIRS = [(w, t) for w in WRITERS for t in TARGETS if getattr(w, NEEDS.get(t, "na
 
 
 def _snapshot(*roots: Path) -> dict[str, tuple[int, int, int]]:
-    """Every file and folder under ``roots`` (the folders' locks aside): size, inode, modification time."""
+    """Every file and folder under ``roots`` (the folders' locks and Python's byte-code caches aside): size, inode,
+    modification time."""
     seen = {}
     for root in roots:
         for dirpath, dirs, files in os.walk(root):
+            dirs[:] = [d for d in dirs if d != "__pycache__"]
             for name in dirs + files:
                 p = os.path.join(dirpath, name)
                 if name != LOCK:

@@ -178,7 +178,7 @@ def test_ctrl_c_while_the_training_state_is_saved_finishes_the_save_then_stops(t
 
     monkeypatch.setattr(C.torch, "save", save)
     run = tmp_path / "run"
-    args = ["train", "synthetic", "-o", str(run), "--max-steps", "4", "--save-every", "1", "--batch-size", "1",
+    args = ["train", "synthetic", "-o", str(run), "--max-steps", "3", "--save-every", "1", "--batch-size", "1",
             "--height", "32", "--width", "64", "--views", "3", "--set", "val_samples=1", "--set",
             "synthetic_views_per_scene=3", "--set", "synthetic_train_scenes=4", "--set", "progress=false", "--set",
             "tensorboard=false", "--set", "warmup_steps=1", "--set", "synthetic_render_scale=1.0"]
@@ -189,4 +189,4 @@ def test_ctrl_c_while_the_training_state_is_saved_finishes_the_save_then_stops(t
     assert state["step"] == 2 and not list((run / "checkpoints").glob("last.next.*"))
     monkeypatch.undo()
     assert main([*args, "--resume"]) == 0
-    assert torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)["step"] == 4
+    assert torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)["step"] == 3
