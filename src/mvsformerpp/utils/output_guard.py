@@ -371,10 +371,11 @@ def writing(path: str | Path, staged: Path | None = None, what: str = "file") ->
         if e.errno not in (errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR,
                            errno.ENAMETOOLONG):
             raise
-        path = Path(path)
+        target = Path(path).absolute()
         where = None if e.filename is None else Path(os.fsdecode(e.filename)).absolute()
-        if where is not None and where.parent != path.absolute().parent and \
-                (staged is None or not _inside(where, Path(staged).absolute())):
+        ours = where is None or (where.parent == target.parent and (where.name == target.name or where.name.startswith(
+            f".{target.name}."))) or (staged is not None and _inside(where, Path(staged).absolute()))
+        if not ours:
             raise
         advice = ("free some space and run the command again" if e.errno in (errno.ENOSPC, errno.EDQUOT)
                   else "choose a location you can write to")
