@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import io
+import os
 import shutil
 import sys
 import tempfile
@@ -70,6 +71,40 @@ def fused_folder(d: Path) -> Path:
         write_pfm(s / "depth_est" / p.name, depth)
         write_pfm(s / "confidence" / p.name, np.full_like(depth, 0.9))
     return s
+
+
+def reconstruction(d: Path, recorded_input: Path | None = None) -> Path:
+    """A ``reconstruct`` output folder ``d/run``: depth maps, the run's marker and record (its input:
+    ``recorded_input``), and its fused cloud."""
+    import json
+
+    from mvsformerpp.cli import main
+
+    run = fused_folder(d).rename(d / "run")
+    (run / ".mvsformerpp").write_text(json.dumps({"written_by": "mvsformerpp reconstruct"}) + "\n")
+    record = {"config": {"preset": "lite"}, "input": str(recorded_input or d / "input")}
+    (run / "config.json").write_text(json.dumps(record) + "\n")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["fuse", str(run), "--quiet"]) == 0
+    return run
+
+
+def quietly(*argv: str) -> None:
+    """Run a command that sets a case up (it must succeed)."""
+    from mvsformerpp.cli import main
+
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(list(argv)) == 0, argv
+
+
+def package_file(*parts: str) -> Path:
+    from mvsformerpp.utils.output_guard import package_root
+
+    return package_root().joinpath(*parts)
+
+
+def cores() -> int:
+    return len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
 
 
 def cloud(path: Path, n: int = 200, seed: int = 0) -> Path:
@@ -213,14 +248,29 @@ def _duplicate_cam(d: Path) -> list[str]:
     return recon(d, src=s)
 
 
-def _huge_focal(d: Path) -> list[str]:
+def _camera(d: Path, change: Callable[[object], None]) -> list[str]:
+    """reconstruct of a scene whose view 1 has its camera changed by ``change`` (of an MVSNetCam)."""
     from mvsformerpp.io.mvsnet import read_cam, write_cam
 
     s = scene(d)
     cam = read_cam(s / "cams" / "00000001_cam.txt")
-    cam.K[0, 0] = cam.K[1, 1] = 1e30
+    change(cam)
     write_cam(s / "cams" / "00000001_cam.txt", cam)
     return recon(d, src=s)
+
+
+def _focal(value: float) -> Callable[[Path], list[str]]:
+    def change(cam) -> None:
+        cam.K[0, 0] = cam.K[1, 1] = value
+
+    return lambda d: _camera(d, change)
+
+
+def _translation(d: Path) -> list[str]:
+    def change(cam) -> None:
+        cam.extrinsic[0, 3] = 1e30
+
+    return _camera(d, change)
 
 
 def _images_without_points_line(d: Path) -> list[str]:
@@ -278,6 +328,86 @@ def _short_par_line(d: Path) -> list[str]:
     return recon(d, src=d / "m")
 
 
+def _error_ply_over_input(d: Path, which: str) -> list[str]:
+    pred = cloud(d / ("c_precision.ply" if which == "prediction" else "p.ply"))
+    gt = cloud(d / ("c_recall.ply" if which == "ground truth" else "g.ply"), seed=1)
+    return ["evaluate", "cloud", str(pred), str(gt), "--threshold", "0.1", "--error-ply", str(d / "c.ply")]
+
+
+def _tnt(d: Path, out: Path, scene_name: str = "Barn", *extra: str) -> list[str]:
+    from mvsformerpp.evaluation.tnt_submission import write_log
+
+    write_log(d / "cams.log", np.eye(4)[None].repeat(2, 0))
+    return ["evaluate", "tnt-submit", str(out), scene_name, str(cloud(d / "p.ply")), str(d / "cams.log"), *extra]
+
+
+def _export_over_recon_input(d: Path) -> list[str]:
+    run = reconstruction(d)
+    quietly("export", str(run), "--to", "colmap", str(d / "ws"), "--quiet")
+    edit(run / "config.json", str(d / "input"), str(d / "ws"))  # as `reconstruct ws -o run` records it
+    return ["export", str(run), "--to", "colmap", str(d / "ws"), "--overwrite", "--quiet"]
+
+
+def _export_onto_symlink(d: Path) -> list[str]:
+    run = fused_folder(d)
+    (d / "elsewhere").mkdir()
+    (d / "ws").symlink_to(d / "elsewhere")
+    return ["export", str(run), "--to", "colmap", str(d / "ws"), "--overwrite", "--quiet"]
+
+
+def _coincident_cloud(d: Path) -> list[str]:
+    from mvsformerpp.io.ply import write_ply
+
+    run = fused_folder(d)
+    write_ply(run / "fused.ply", np.zeros((500, 3)), normals=np.tile([0.0, 0.0, 1.0], (500, 1)))
+    return ["mesh", str(run), "-o", str(d / "m.ply"), "--method", "poisson", "--quiet"]
+
+
+def _binary_recipe(d: Path) -> list[str]:
+    (d / "recipe.yaml").write_bytes(bytes(range(256)))
+    return ["train", str(d / "recipe.yaml"), "-o", str(d / "run")]
+
+
+def _black_depth_masks(d: Path) -> list[str]:
+    from PIL import Image
+
+    s = scene(d)
+    (d / "masks").mkdir()
+    for p in sorted((s / "depth_gt").glob("*.pfm")):
+        Image.new("L", (96, 64), 0).save(d / "masks" / f"{p.stem}.png")
+    return ["evaluate", "depth", str(s / "depth_gt"), str(s / "depth_gt"), "--mask-dir", str(d / "masks")]
+
+
+def _read_only_place(monkeypatch, suffix: str) -> None:
+    """Creating files whose name ends with ``suffix`` fails as on a read-only file system."""
+    import tempfile
+
+    def refuse(name: str):
+        raise OSError(errno.EROFS, "Read-only file system", name)
+
+    real_mkstemp, real_open = tempfile.mkstemp, os.open
+    monkeypatch.setattr(tempfile, "mkstemp", lambda *a, **k: refuse(os.path.join(k.get("dir", "."), "tmp"))
+                        if str(k.get("suffix", "")).endswith(suffix) else real_mkstemp(*a, **k))
+    monkeypatch.setattr(os, "open", lambda path, *a, **k: refuse(path) if str(path).endswith(suffix)
+                        else real_open(path, *a, **k))
+
+
+def mesh(*flags: str, fused: bool = False) -> Callable[[Path], list[str]]:
+    """A case's command: ``mesh OUT -o DIR/m.ply FLAGS`` on depth maps, or with ``fused`` on a reconstruction with its
+    fused cloud."""
+    return lambda d: ["mesh", str(reconstruction(d) if fused else fused_folder(d)), "-o", str(d / "m.ply"), *flags,
+                      "--quiet"]
+
+
+def into_scene(command: str, *where: str) -> Callable[[Path], list[str]]:
+    """A case's command: ``COMMAND SCENE -o SCENE/WHERE...`` on a scene folder with depth maps (fuse, mesh, report)."""
+    def build(d: Path) -> list[str]:
+        s = fused_folder(d)
+        return [command, str(s), "-o", str(s.joinpath(*where)), *(["--quiet"] if command != "report" else [])]
+
+    return build
+
+
 def train_set(*values: str) -> Callable[[Path], list[str]]:
     """A case's command: ``train synthetic -o DIR/run --set VALUE ...``."""
     return lambda d: ["train", "synthetic", "-o", str(d / "run"), *[a for v in values for a in ("--set", v)]]
@@ -310,7 +440,7 @@ CASES: list[Case] = [
          lambda d: recon(d, src=_pair(d, "3\n0\n2 7 1.0 1 0.5\n1\n2 0 1.0 2 0.5\n2\n2 0 1.0 1 0.5\n")), "7"),
     Case("recon-cam-duplicate", "two cam files for one view (`1_cam.txt` beside `00000001_cam.txt`)", _duplicate_cam,
          "two cam files for view 1"),
-    Case("recon-focal-huge", "a focal length of 1e30 pixels", _huge_focal, "field of view"),
+    Case("recon-focal-huge", "a focal length of 1e30 pixels", _focal(1e30), "field of view"),
     Case("recon-colmap-missing-points-line", "a COLMAP images.txt missing an image's 2-D points line",
          _images_without_points_line, "2-D points of image"),
     Case("recon-masks-all-black", "--mask-dir whose masks are all black", _black_masks,
@@ -331,7 +461,7 @@ CASES: list[Case] = [
     Case("recon-out-other-scene", "-o is another scene's folder",
          lambda d: recon(d, out=scene(d, "other")), "not written by mvsformerpp reconstruct"),
     Case("recon-out-under-file", "-o lies under a file", lambda d: recon(d, out=_file(d, "f") / "out"),
-         "cannot create the output folder"),
+         "which is a file, not a folder"),
     Case("recon-out-read-only", "-o on a read-only file system", lambda d: recon(d, out=d / "ro"),
          "Read-only file system",
          patch=lambda mp: mp.setattr(Path, "mkdir", lambda *a, **k: (_ for _ in ()).throw(
@@ -395,25 +525,23 @@ CASES: list[Case] = [
     Case("fuse-disk-full", "the disk fills up while fuse writes the cloud",
          lambda d: ["fuse", str(fused_folder(d)), "--quiet"], "No space left",
          patch=lambda mp: _full_disk(mp, "mvsformerpp.io.ply", "PlyStreamWriter.write")),
-    Case("fuse-output-is-photo", "fuse -o pointing at an input photo",
-         lambda d: (lambda s: ["fuse", str(s), "-o", str(s / "images" / "00000000.png"), "--quiet"])(fused_folder(d)),
+    Case("fuse-output-is-photo", "fuse -o pointing at an input photo", into_scene("fuse", "images", "00000000.png"),
          "not a PLY"),
-    Case("mesh-output-is-photo", "mesh -o pointing at an input photo",
-         lambda d: (lambda s: ["mesh", str(s), "-o", str(s / "images" / "00000000.png"), "--quiet"])(fused_folder(d)),
+    Case("mesh-output-is-photo", "mesh -o pointing at an input photo", into_scene("mesh", "images", "00000000.png"),
          "not a PLY mesh"),
     Case("report-output-is-photo", "report -o pointing at an input photo",
-         lambda d: (lambda s: ["report", str(s), "-o", str(s / "images" / "00000000.png")])(fused_folder(d)),
-         "not an HTML report"),
+         into_scene("report", "images", "00000000.png"), "not an HTML report"),
     Case("eval-json-is-photo", "evaluate --json pointing at a photo",
          lambda d: (lambda s: ["evaluate", "cloud", str(s / "fused.ply"), str(s / "fused.ply"), "--threshold", "1",
-                               "--json", str(s / "images" / "00000000.png")])(fused_folder(d)), "not a JSON"),
+                               "--json", str(s / "images" / "00000000.png")])(fused_folder(d)),
+         "not an evaluation JSON"),
     Case("mesh-disk-full", "the disk fills up while mesh writes the mesh",
          lambda d: ["mesh", str(fused_folder(d)), "-o", str(d / "m.ply"), "--quiet"], r"m\.ply.*No space left",
          patch=lambda mp: _full_disk(mp, "mvsformerpp.utils.atomic", "os.fsync")),
     Case("export-overwrite-parent", "export OUT --to colmap PARENT --overwrite, PARENT holding OUT",
-         _export_into_parent, "holds the reconstruction"),
+         _export_into_parent, "contains the input DIR/scene"),
     Case("export-overwrite-user-folder", "export --overwrite onto a folder of the user's own files",
-         _export_over_user_folder, "replaces only an empty folder or a COLMAP workspace"),
+         _export_over_user_folder, "replaces only an empty folder or one that mvsformerpp export wrote"),
     Case("view-host-unknown", "view --host 999.1.1.1",
          lambda d: ["view", str(fused_folder(d)), "--host", "999.1.1.1"], "--host"),
     # evaluate
@@ -441,7 +569,7 @@ CASES: list[Case] = [
     Case("eval-cloud-error-ply-disk-full", "the disk fills up while evaluate writes --error-ply",
          lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "0.1",
                     "--error-ply", str(d / "err.ply")], "No space left",
-         patch=lambda mp: _full_disk(mp, "mvsformerpp.evaluation.visualize", "write_error_ply")),
+         patch=lambda mp: _full_disk(mp, "mvsformerpp.evaluation.visualize", "write_ply")),
     Case("eval-depth-threshold-zero", "evaluate depth --thresholds 0",
          lambda d: ["evaluate", "depth", str(d), str(d), "--thresholds", "0"], "--thresholds"),
     Case("eval-depth-interval-negative", "evaluate depth --interval -1",
@@ -536,6 +664,113 @@ CASES: list[Case] = [
          "no such file"),
     Case("info-depth-range-reversed", "info --depth-range 5 1",
          lambda d: ["info", str(scene(d)), "--depth-range", "5", "1"], "0 < min < max"),
+    # the output guard, round 4: data that used to be lost
+    Case("mesh-over-fused-cloud", "mesh OUT -o OUT/fused.ply (the reconstruction's own cloud)",
+         lambda d: (lambda r: ["mesh", str(r), "-o", str(r / "fused.ply"), "--quiet"])(reconstruction(d)),
+         "is the input .*fused.ply"),
+    Case("mesh-poisson-over-fused-cloud", "mesh OUT -o OUT/fused.ply --method poisson",
+         lambda d: (lambda r: ["mesh", str(r), "-o", str(r / "fused.ply"), "--method", "poisson", "--quiet"])(
+             reconstruction(d)), "is the input .*fused.ply"),
+    Case("eval-error-ply-over-prediction", "evaluate cloud c_precision.ply GT --error-ply c.ply",
+         lambda d: _error_ply_over_input(d, "prediction"), "c_precision.ply: the output is the input"),
+    Case("eval-error-ply-over-gt", "evaluate cloud PRED c_recall.ply --error-ply c.ply",
+         lambda d: _error_ply_over_input(d, "ground truth"), "c_recall.ply: the output is the input"),
+    Case("eval-plot-over-photo", "evaluate cloud --plot SCENE/images/00000001.png (a photo)",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "1",
+                    "--plot", str(scene(d) / "images" / "00000001.png")], "did not write as a PNG plot"),
+    Case("eval-json-in-package", "evaluate --json onto the shipped weights' record in the installed package",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "1",
+                    "--json", str(package_file("assets", "weights", "default.json"))], "installed mvsformerpp package"),
+    Case("eval-plot-in-package", "evaluate --plot onto a photo of the bundled temple",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "1",
+                    "--plot", str(package_file("assets", "templeSparseRing", "templeSR0001.png"))],
+         "installed mvsformerpp package"),
+    Case("eval-json-over-run-config", "evaluate --json OUT/config.json (a reconstruction's record)",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "1",
+                    "--json", str(reconstruction(d) / "config.json")], "did not write as an evaluation JSON"),
+    Case("eval-depth-json-over-scene-file", "evaluate depth --json SCENE/scene.json (a synthetic scene's record)",
+         lambda d: (lambda s: ["evaluate", "depth", str(s / "depth_gt"), str(s / "depth_gt"), "--json",
+                               str(s / "scene.json")])(scene(d)), "did not write as an evaluation JSON"),
+    Case("tnt-scene-escapes", "evaluate tnt-submit with the scene name ../../escaped",
+         lambda d: _tnt(d, d / "sub", "../../escaped"), "not a Tanks-and-Temples scene"),
+    Case("tnt-scene-gt-surface", "evaluate tnt-submit SCENE gt_surface ... --overwrite (SCENE/gt_surface.ply)",
+         lambda d: _tnt(d, scene(d), "gt_surface", "--overwrite"), "not a Tanks-and-Temples scene"),
+    Case("tnt-scene-empty", "evaluate tnt-submit with an empty scene name",
+         lambda d: _tnt(d, d / "sub", ""), "'' is not a Tanks-and-Temples scene"),
+    Case("tnt-scene-unknown", "evaluate tnt-submit with the scene name barn (the benchmark's is Barn)",
+         lambda d: _tnt(d, d / "sub", "barn"), "did you mean Barn"),
+    Case("tnt-into-reconstruction", "evaluate tnt-submit OUT Barn=OUT (into the reconstruction itself)",
+         lambda d: (lambda r: ["evaluate", "tnt-submit", str(r), f"Barn={r}"])(reconstruction(d)),
+         "is the input"),
+    Case("tnt-into-user-folder", "evaluate tnt-submit into a folder of the user's own files",
+         lambda d: _tnt(d, (d / "mine").mkdir() or _file(d / "mine", "notes.txt").parent),
+         "not written by mvsformerpp tnt-submit"),
+    Case("export-over-recon-input", "reconstruct WS -o OUT; export OUT --to colmap WS --overwrite",
+         _export_over_recon_input, "the output folder is the input DIR/ws"),
+    Case("export-onto-symlink", "export --overwrite onto a symbolic link to a folder", _export_onto_symlink,
+         "symbolic link"),
+    # the output guard, round 4: tracebacks and hangs
+    Case("fuse-output-under-file", "fuse -o SCENE/pair.txt/x.ply", into_scene("fuse", "pair.txt", "x.ply"),
+         "which is a file, not a folder"),
+    Case("mesh-output-under-file", "mesh -o SCENE/pair.txt/x.ply", into_scene("mesh", "pair.txt", "x.ply"),
+         "which is a file, not a folder"),
+    Case("report-output-under-file", "report -o SCENE/pair.txt/x.html", into_scene("report", "pair.txt", "x.html"),
+         "which is a file, not a folder"),
+    Case("export-target-under-file", "export OUT --to colmap FILE/ws",
+         lambda d: ["export", str(fused_folder(d)), "--to", "colmap", str(_file(d, "f") / "ws"), "--quiet"],
+         "which is a file, not a folder"),
+    Case("eval-json-under-file", "evaluate --json SCENE/pair.txt/x.json",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "1",
+                    "--json", str(scene(d) / "pair.txt" / "x.json")], "which is a file, not a folder"),
+    Case("output-name-too-long", "fuse -o with a file name of 300 bytes",
+         lambda d: ["fuse", str(fused_folder(d)), "-o", str(d / ("a" * 300 + ".ply")), "--quiet"],
+         "304 bytes long"),
+    Case("input-name-too-long", "info on a path whose name has 300 bytes",
+         lambda d: ["info", str(d / ("a" * 300))], "longer than the file system allows"),
+    Case("mesh-truncation-huge", "mesh --truncation 1e9 (a negative tensor size)", mesh("--truncation", "1e9"),
+         "--truncation"),
+    Case("mesh-threads-huge", "mesh --method poisson --threads 100000 (a crash in MeshLab)",
+         mesh("--method", "poisson", "--threads", "100000", fused=True), "--threads must be 1 .. CORES"),
+    Case("mesh-threads-more-than-cores", "mesh --method poisson --threads 1000 (hung, its threads spinning)",
+         mesh("--method", "poisson", "--threads", "1000", fused=True), "--threads must be 1 .. CORES"),
+    Case("mesh-poisson-coincident-points", "mesh --method poisson on a fused cloud whose points all coincide",
+         _coincident_cloud, "all lie at one place"),
+    Case("recon-depth-range-extreme", "--depth-range 1e-300 1e300",
+         lambda d: recon(d, "--depth-range", "1e-300", "1e300"), "single precision"),
+    Case("recon-focal-tiny", "a focal length of 1e-9 pixels", _focal(1e-9), "field of view of 180 degrees"),
+    Case("recon-translation-huge", "a camera translation of 1e30", _translation, "camera centre lies 1e\\+30"),
+    Case("train-recipe-binary", "a binary file as the training recipe", _binary_recipe, "not a YAML text file"),
+    Case("synth-seed-huge", "synth --seed 2**70", lambda d: ["synth", str(d / "s"), "--seed", str(2**70)], "--seed"),
+    Case("eval-plot-format-unknown", "evaluate --plot p.xyz (a format matplotlib has not)",
+         lambda d: ["evaluate", "cloud", str(cloud(d / "p.ply")), str(cloud(d / "g.ply")), "--threshold", "1",
+                    "--plot", str(d / "p.xyz")], "cannot write a .xyz plot"),
+    Case("tnt-into-dev-null", "evaluate tnt-submit /dev/null ...", lambda d: _tnt(d, Path("/dev/null")),
+         "not a folder"),
+    # the output guard, round 4: unclear messages
+    Case("fuse-memory-tiny", "fuse --memory-gb 1e-9", lambda d: ["fuse", str(fused_folder(d)), "--memory-gb", "1e-9"],
+         "need about [0-9]+ [KM]B; raise --memory-gb to at least"),
+    Case("mesh-voxel-huge", "mesh --voxel 1e6 (larger than the scene)", mesh("--voxel", "1e6"),
+         "larger than an eighth of the scene box"),
+    Case("mesh-trim-everything", "mesh --method poisson --trim 99.999",
+         mesh("--method", "poisson", "--trim", "99.999", fused=True), "--trim"),
+    Case("eval-depth-masks-black", "evaluate depth --mask-dir with all-black masks", _black_depth_masks,
+         "the masks mark no pixel"),
+    Case("report-read-only", "report into a read-only folder (named by the report, not its temporary)",
+         lambda d: ["report", str(fused_folder(d))], r"scene/report\.html: cannot write this file \(Read-only",
+         patch=lambda mp: _read_only_place(mp, ".tmp")),
+    Case("fuse-lock-read-only", "fuse -o into a read-only folder (named by the cloud, not its lock)",
+         lambda d: ["fuse", str(fused_folder(d)), "-o", str(d / "plain" / "f.ply"), "--quiet"],
+         r"plain/f\.ply: cannot write to the output file \(Read-only",
+         patch=lambda mp: _read_only_place(mp, ".lock")),
+    Case("train-height-huge", "train --height 100000", lambda d: ["train", "synthetic", "-o", str(d / "run"),
+                                                                  "--height", "100000"], "at most 4096"),
+    Case("train-max-steps-zero", "train --max-steps 0",
+         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--max-steps", "0"], "max_steps must be at least 1"),
+    Case("recon-checkpoint-folder", "--checkpoint naming a folder", lambda d: recon(d, "--checkpoint", str(d)),
+         "a folder, not a checkpoint file"),
+    Case("train-checkpoint-folder", "train --checkpoint naming a folder",
+         lambda d: ["train", "synthetic", "-o", str(d / "run"), "--checkpoint", str(d)],
+         "a folder, not a checkpoint file"),
 ]
 
 
@@ -567,9 +802,12 @@ def run_case(case: Case, folder: Path) -> tuple[int | None, str, str]:
 
 
 def normalise(message: str, folder: Path) -> str:
-    """The message with the case's folder shown as ``DIR``."""
+    """The message with the case's folder shown as ``DIR``, the installed package as ``PACKAGE`` and this
+    machine's number of CPU cores as ``CORES``."""
     for f in {str(folder.resolve()), str(folder)}:
         message = message.replace(f, "DIR")
+    message = message.replace(str(package_file()), "PACKAGE")
+    message = message.replace(f" 1 .. {cores()} (the CPU cores", " 1 .. CORES (the CPU cores")
     return message.strip()
 
 
@@ -595,8 +833,20 @@ Other failures the suite provokes, beyond one-line messages:
   resumed run's `last.safetensors` and `last.state.pt` (optimiser, schedule, random state) are byte for byte
   the uninterrupted run's). A kill at any instant of saving a checkpoint leaves a pair to resume from
   (`tests/training/test_checkpoints.py`).
-- Two processes writing into one folder: the second stops and names the first's pid and host
-  (`tests/pipelines/test_output_safety.py`).
+- `synth` killed (`kill -9`, Ctrl-C) or stopped by a full disk, then the same command: the set is completed,
+  byte for byte the uninterrupted one (`tests/synth/test_synth_resume.py`). `export --overwrite` killed before
+  the old workspace is renamed aside, between that and renaming the new one in, or before deleting the old
+  one: the same command puts the old one back or finishes, and leaves the new workspace and no temporary
+  (`tests/pipelines/test_export.py`; the first and last instants in the slow suite). Ctrl-C while `train` saves
+  a checkpoint: the save ends whole, the run stops with exit code 130, `--resume` goes on
+  (`tests/training/test_train.py`).
+- Two processes writing into one folder, or into one file of a folder of the user's (`fuse -o f.ply`), or
+  two `synth` runs into one folder: the second stops and names the first's pid and host
+  (`tests/pipelines/test_output_safety.py`, `tests/synth/test_synth_resume.py`).
+- Every command that writes, against one table of places it must not write (inside the installed package,
+  an input, a file of another run or kind, a file of the user's of the same format, under a file, a name
+  over 255 bytes, a folder for a file and a file for a folder, a symbolic link to an input): one `error:`
+  line and not a byte changed (`tests/cli/test_forbidden_targets.py`; the rules: `docs/output-guard.md`).
 - Checkpoints crafted to run code when unpickled (a pickled `os.system` call, alone or inside an
   official-layout dict; torch zip files whose pickle walks `_rebuild_tensor_v2.__builtins__.get` to
   `eval` by a protocol-4 dotted name; a dotted tail on an admitted name): each is shown to run under

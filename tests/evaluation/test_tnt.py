@@ -114,7 +114,7 @@ def test_log_round_trip_scene_poses_and_package(tmp_path):
 
     write_ply(tmp_path / "rec.ply", np.zeros((2, 3)))
     out = package_tnt_submission(tmp_path / "sub", {"Family": (tmp_path / "rec.ply", scene)})
-    assert sorted(p.name for p in out.iterdir()) == ["Family.log", "Family.ply"]
+    assert sorted(p.name for p in out.iterdir() if not p.name.startswith(".")) == ["Family.log", "Family.ply"]
     assert (out / "Family.ply").read_bytes() == (tmp_path / "rec.ply").read_bytes()
     with pytest.raises(InputError, match="already packaged"):
         package_tnt_submission(out, {"Family": (tmp_path / "rec.ply", poses)})

@@ -1,5 +1,10 @@
-"""COLMAP export: read back with pycolmap, depth maps identical, COLMAP's own fusion runs on it."""
+"""COLMAP export: read back with pycolmap, depth maps identical, COLMAP's own fusion runs on it; --overwrite
+replaces a workspace only once the new one is whole, and a kill at any instant of that is recovered."""
 
+import signal
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
@@ -11,6 +16,7 @@ from mvsformerpp.io.mvsnet import load_mvsnet_scene
 from mvsformerpp.io.pfm import read_pfm
 from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
 from mvsformerpp.pipelines.export import export_colmap
+from mvsformerpp.utils.atomic import current_umask
 
 
 def test_array_format_matches_colmaps_reading_order(tmp_path):
@@ -73,7 +79,7 @@ def test_export_refuses_a_non_empty_folder(synth_run, tmp_path, capsys):
     assert (ws / "keep.txt").read_text() == "mine"
     # --overwrite replaces an earlier export, never a folder of the user's own files
     assert main(["export", str(synth_run), "--to", "colmap", str(ws), "--overwrite", "--quiet"]) == 2
-    assert "replaces only an empty folder or a COLMAP workspace" in capsys.readouterr().err
+    assert "replaces only an empty folder or one that mvsformerpp export wrote" in capsys.readouterr().err
     assert (ws / "keep.txt").read_text() == "mine"
     ws2 = tmp_path / "ws2"
     assert main(["export", str(synth_run), "--to", "colmap", str(ws2), "--quiet"]) == 0
@@ -94,7 +100,7 @@ def test_overwrite_never_deletes_the_reconstruction_or_the_photos(synth_run, tmp
     for p in (parent / "images", parent / "sparse", parent / "stereo"):
         p.mkdir()  # looks like a workspace, and it holds the reconstruction
     assert main(["export", str(out), "--to", "colmap", str(parent), "--overwrite", "--quiet"]) == 2
-    assert "holds the reconstruction" in capsys.readouterr().err and (out / "depth_est").is_dir()
+    assert f"contains the input {out}" in capsys.readouterr().err and (out / "depth_est").is_dir()
     photos = tmp_path / "shoot" / "images"  # the photos the run read, linked from OUT/images as reconstruct does
     photos.mkdir(parents=True)
     for link in sorted((out / "images").iterdir()):
@@ -104,5 +110,61 @@ def test_overwrite_never_deletes_the_reconstruction_or_the_photos(synth_run, tmp
     for sub in ("sparse", "stereo"):  # their folder looks like a workspace (an earlier export read back)
         (photos.parent / sub).mkdir()
     assert main(["export", str(out), "--to", "colmap", str(photos.parent), "--overwrite", "--quiet"]) == 2
-    assert "holds the input photos" in capsys.readouterr().err
+    assert f"contains the input {photos}" in capsys.readouterr().err
     assert photos.is_dir() and any(photos.iterdir())
+
+
+# Runs the command line, but kills itself with SIGKILL at one instant of putting the new workspace in place:
+# before the old one is renamed aside, before the new one is renamed in, or before the old one is deleted.
+KILL_IN_SWAP = textwrap.dedent("""
+    import os, shutil, signal, sys
+    instant = sys.argv.pop(1)
+    real_rename, real_rmtree, renames = os.rename, shutil.rmtree, [0]
+    def rename(a, b):
+        renames[0] += 1
+        if (instant, renames[0]) in (("aside", 1), ("rename-in", 2)):
+            os.kill(os.getpid(), signal.SIGKILL)
+        return real_rename(a, b)
+    def rmtree(path, *args, **kw):
+        if instant == "delete-old" and str(path).endswith(".previous"):
+            os.kill(os.getpid(), signal.SIGKILL)
+        return real_rmtree(path, *args, **kw)
+    os.rename, shutil.rmtree = rename, rmtree
+    from mvsformerpp.cli import main
+    sys.exit(main(sys.argv[1:]))
+""")
+
+
+def _tree(root):
+    return {str(p.relative_to(root)): p.read_bytes() for p in sorted(root.rglob("*")) if p.is_file()}
+
+
+def _kill_during_overwrite_then_rerun(synth_run, tmp_path, instant):
+    ws = tmp_path / "ws"
+    command = ["export", str(synth_run), "--to", "colmap", str(ws), "--overwrite", "--quiet"]
+    assert main(command) == 0
+    new = _tree(ws)
+    (ws / "sparse" / "from_before.txt").write_text("the old workspace")
+    old = _tree(ws)
+    proc = subprocess.run([sys.executable, "-c", KILL_IN_SWAP, instant, *command], timeout=600)
+    assert proc.returncode == -signal.SIGKILL
+    left = sorted(p.name for p in tmp_path.iterdir() if p.name.startswith(".ws."))
+    assert left, "the kill left nothing to recover from"
+    if instant == "aside":  # the old workspace is still in place
+        assert _tree(ws) == old
+    if instant == "rename-in":  # no workspace under its name: the old one waits aside
+        assert not ws.exists() and ".ws.previous" in left
+    assert main(command) == 0  # the same command recovers
+    assert _tree(ws) == new
+    assert not [p.name for p in tmp_path.iterdir() if p.name.startswith(".")]
+    assert (ws.stat().st_mode & 0o777) == 0o777 & ~current_umask()
+
+
+def test_export_overwrite_killed_between_its_renames_is_recovered_by_the_same_command(synth_run, tmp_path):
+    _kill_during_overwrite_then_rerun(synth_run, tmp_path, "rename-in")
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("instant", ["aside", "delete-old"])
+def test_export_overwrite_killed_at_its_other_instants_is_recovered(synth_run, tmp_path, instant):
+    _kill_during_overwrite_then_rerun(synth_run, tmp_path, instant)

@@ -10,6 +10,7 @@ import textwrap
 import time
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from mvsformerpp.cli import main
@@ -56,8 +57,8 @@ def test_synth_refuses_a_non_empty_folder(tmp_path, capsys):
     assert rc == 2 and "not empty" in capsys.readouterr().err
     assert [p.name for p in target.iterdir()] == ["notes.txt"]
     assert main(["synth", str(tmp_path / "new"), "--views", "2", "--height", "32", "--width", "32"]) == 0
-    rc = main(["synth", str(tmp_path / "new"), "--views", "2", "--height", "32", "--width", "32"])
-    assert rc == 2  # not even its own earlier output: files would mix
+    rc = main(["synth", str(tmp_path / "new"), "--views", "3", "--height", "32", "--width", "32"])
+    assert rc == 2 and "other settings (num_views 2 -> 3)" in capsys.readouterr().err  # files would mix
 
 
 def test_failed_run_leaves_no_empty_output_folder(mvs, tmp_path):
@@ -89,7 +90,7 @@ def test_unwritable_output_folder_is_one_clear_error(mvs, tmp_path, monkeypatch,
     (tmp_path / "a_file").write_text("x")
     rc = main(["reconstruct", str(mvs), "-o", str(tmp_path / "a_file" / "out"), "--quiet"])
     err = capsys.readouterr().err
-    assert rc == 2 and err.startswith("error:") and "cannot create the output folder" in err and err.count("\n") == 1
+    assert rc == 2 and err.startswith("error:") and "which is a file, not a folder" in err and err.count("\n") == 1
 
     def read_only(self, *a, **kw):
         raise OSError(errno.EROFS, "Read-only file system")
@@ -180,6 +181,8 @@ def test_ranks_of_one_job_share_the_lock_of_rank_0(tmp_path, monkeypatch):
 def test_no_command_overwrites_a_file_of_another_kind(synth_run, tmp_path, capsys, command):
     """mesh -o, report -o, evaluate --json/--plot/--error-ply replace only a file of the kind they write."""
     from mvsformerpp.cli import main
+    from mvsformerpp.io.ply import write_ply
+    from mvsformerpp.utils.file_kinds import MESH
     from mvsformerpp.utils.output_guard import check_replaceable
 
     photo = tmp_path / "photo.png"
@@ -209,4 +212,33 @@ def test_no_command_overwrites_a_file_of_another_kind(synth_run, tmp_path, capsy
         own = tmp_path / {"report": "r.html", "json": "r.json"}[command]
         args[args.index(str(photo))] = str(own)
         assert main(args) == 0 and main(args) == 0
-    check_replaceable(synth_run / "fused.ply", (b"ply",), "PLY mesh")
+    write_ply(tmp_path / "m.ply", np.zeros((3, 3)), faces=np.array([[0, 1, 2]]), kind=MESH)
+    check_replaceable(tmp_path / "m.ply", MESH)
+    with pytest.raises(InputError, match="did not write as a PLY mesh"):  # a point cloud is not a mesh
+        check_replaceable(synth_run / "fused.ply", MESH)
+
+
+def test_two_fuse_runs_into_one_file_of_a_plain_folder(synth_run, tmp_path, capsys):
+    """The second stops at once and names the first (a lock beside the file, as no run folder holds it); the
+    first's temporary is left alone; killed, the first leaves the next run nothing to trip over."""
+    from test_input_checks import HANG_ON_FSYNC
+
+    out = tmp_path / "plain" / "f.ply"
+    full = tmp_path / "full.ply"
+    assert main(["fuse", str(synth_run), "-o", str(full), "--quiet"]) == 0
+    signal_file = tmp_path / "writing"
+    first = subprocess.Popen([sys.executable, "-c", HANG_ON_FSYNC, str(signal_file), "fuse", str(synth_run), "-o",
+                              str(out), "--quiet"])
+    deadline = time.monotonic() + 120
+    while not signal_file.exists():
+        assert first.poll() is None and time.monotonic() < deadline, "the first run did not start"
+        time.sleep(0.02)
+    assert main(["fuse", str(synth_run), "-o", str(out), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    assert f"another mvsformerpp run (pid {first.pid} on " in err and "is writing this file" in err, err
+    assert list(out.parent.glob(".f.ply.*.tmp"))  # (the first's cloud in progress, untouched)
+    first.kill()
+    first.wait()
+    assert main(["fuse", str(synth_run), "-o", str(out), "--quiet"]) == 0
+    assert out.read_bytes() == full.read_bytes()
+    assert [p.name for p in out.parent.iterdir()] == ["f.ply"]  # no temporary, no lock left

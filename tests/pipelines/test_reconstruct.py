@@ -358,7 +358,7 @@ def test_the_plan_is_said_before_the_depth_maps(scene4, tmp_path, capsys):
     written = sum(p.stat().st_size for d in ("depth_est", "confidence", "depth_vis", "confidence_vis")
                   for p in (out / d).iterdir())
     number, unit = plan.split("about ")[1].split()[:2]
-    said = float(number) * {"MB": 2**20, "GB": 2**30}[unit]
+    said = float(number) * {"KB": 2**10, "MB": 2**20, "GB": 2**30}[unit]
     assert 0.5 * written <= said <= 2 * written  # the estimate, within a factor of 2
     reconstruct(scene4, out, FAST, quiet=False, model=fake_model())
     assert "0 to compute, 4 done before" in capsys.readouterr().out

@@ -157,3 +157,36 @@ def test_scene_batches_train_on_whole_scenes_and_need_a_batch_of_whole_scenes(tm
     assert summary["steps"] == 2 and summary["bad_steps"] == 0
     with pytest.raises(InputError, match="batch_size must be a multiple of it, got 2"):
         tiny_config(synthetic_scene_batches=True, batch_size=2)
+
+
+def test_ctrl_c_while_the_training_state_is_saved_finishes_the_save_then_stops(tmp_path, monkeypatch, capsys):
+    """Ctrl-C that comes while step 2's optimiser state is being saved: the save ends whole, the run stops (exit
+    130, saying how to continue), and --resume goes on from step 2."""
+    import os
+    import signal
+
+    import mvsformerpp.training.checkpoints as C
+    from mvsformerpp.cli import main
+
+    real, saves = C.torch.save, []
+
+    def save(obj, f, *a, **kw):
+        saves.append(obj["step"])
+        if obj["step"] == 2:
+            os.kill(os.getpid(), signal.SIGINT)  # (delivered at once: the handler runs before the save goes on)
+        return real(obj, f, *a, **kw)
+
+    monkeypatch.setattr(C.torch, "save", save)
+    run = tmp_path / "run"
+    args = ["train", "synthetic", "-o", str(run), "--max-steps", "3", "--save-every", "1", "--batch-size", "1",
+            "--height", "32", "--width", "64", "--views", "3", "--set", "val_samples=1", "--set",
+            "synthetic_views_per_scene=3", "--set", "synthetic_train_scenes=4", "--set", "progress=false", "--set",
+            "tensorboard=false", "--set", "warmup_steps=1", "--set", "synthetic_render_scale=1.0"]
+    assert main(args) == 130
+    assert "interrupted; continue the run with the same command and --resume" in capsys.readouterr().err
+    assert saves == [1, 2]
+    state = torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)
+    assert state["step"] == 2 and not list((run / "checkpoints").glob("last.next.*"))
+    monkeypatch.undo()
+    assert main([*args, "--resume"]) == 0
+    assert torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)["step"] == 3

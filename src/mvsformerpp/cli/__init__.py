@@ -1,8 +1,9 @@
 """The ``mvsformerpp`` command: one subcommand per module in this package.
 
 Each subcommand module defines ``register(subparsers)``, which adds its parser and sets
-``func`` to a callable taking the parsed arguments and returning an exit code. A subcommand imports
-its pipeline inside that callable, not at the top of its module: every invocation builds the whole
+``func`` to a callable taking the parsed arguments and returning an exit code; optionally ``on_interrupt``
+(how to continue after Ctrl-C) and ``on_memory_error`` (the settings that need less memory). A subcommand
+imports its pipeline inside that callable, not at the top of its module: every invocation builds the whole
 parser, which loads neither torch nor scipy (``tests/cli/test_startup.py``; torch alone takes seconds).
 """
 
@@ -22,7 +23,8 @@ COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "mesh", "export", "r
 
 
 # Operating-system errors the user fixes (space, permissions, read-only media, a path under a file).
-_USER_FIXABLE = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR}
+_USER_FIXABLE = {errno.ENOSPC, errno.EDQUOT, errno.EACCES, errno.EPERM, errno.EROFS, errno.ENOTDIR, errno.EISDIR,
+                 errno.ENAMETOOLONG}
 
 
 def _one_line(message: str) -> str:
@@ -81,18 +83,29 @@ def main(argv: list[str] | None = None) -> int:
         if e.errno not in _USER_FIXABLE:
             raise
         where = f"{e.filename}: " if e.filename else ""
+        if e.errno == errno.ENAMETOOLONG and e.filename:
+            where = f"{_shortened(e.filename)}: "
         advice = {errno.ENOSPC: "free some space and run the same command again",
                   errno.EDQUOT: "free some space and run the same command again",
-                  errno.EROFS: "the file system is read-only: choose another location"}.get(
-            e.errno, "check the path and its permissions")
+                  errno.EROFS: "the file system is read-only: choose another location",
+                  errno.ENAMETOOLONG: "a name in the path is longer than the file system allows (usually 255 "
+                                      "bytes): choose a shorter one"}.get(e.errno, "check the path and its permissions")
         print(f"error: {where}{e.strerror}; {advice} (finished outputs are kept)", file=sys.stderr)
         return 2
     except MemoryError:
-        print("error: out of memory; use smaller inputs or settings (e.g. --max-size, --memory-gb)", file=sys.stderr)
+        advice = getattr(args, "on_memory_error", "use smaller inputs or settings")
+        print(f"error: out of memory; {advice}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print("interrupted; run the same command again to continue where it stopped", file=sys.stderr)
+        advice = getattr(args, "on_interrupt", "run the same command again to continue where it stopped")
+        print(f"interrupted; {advice}", file=sys.stderr)
         return 130
+
+
+def _shortened(name: str | bytes, keep: int = 20) -> str:
+    """A path with each over-long name cut to its first ``keep`` characters."""
+    name = name if isinstance(name, str) else name.decode(errors="surrogateescape")
+    return "/".join(part if len(part) <= 2 * keep else f"{part[:keep]}..." for part in name.split("/"))
 
 
 def entry() -> int:

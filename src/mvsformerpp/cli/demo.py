@@ -35,4 +35,4 @@ def register(subparsers) -> None:
     add_model_args(p, default_preset="lite")
     add_config_flags(p, ReconstructConfig, ("max_size", "max_images"), max_size=DEMO_CONFIG.max_size)
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, on_memory_error="lower --max-size")

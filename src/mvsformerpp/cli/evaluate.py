@@ -11,7 +11,8 @@ import numpy as np
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.utils.atomic import atomic_write_text
-from mvsformerpp.utils.output_guard import check_replaceable, writing
+from mvsformerpp.utils.file_kinds import ERROR_CLOUD, EVALUATION_JSON, JSON_MARKER, plot_kind
+from mvsformerpp.utils.output_guard import check_output_file, claim_output_file
 
 
 def _positive(flag: str, *values: float) -> None:
@@ -21,21 +22,36 @@ def _positive(flag: str, *values: float) -> None:
             raise InputError(f"{flag} must be a positive number, got {v:g}")
 
 
-def _write_json(path: str | None, payload) -> None:
-    if path:
-        def clean(v):  # JSON has no NaN: write null
-            if isinstance(v, float) and not math.isfinite(v):
-                return None
-            if isinstance(v, dict):
-                return {k: clean(x) for k, x in v.items()}
-            if isinstance(v, list):
-                return [clean(x) for x in v]
-            return v
+_INPUTS = ("pred", "gt", "pred_dir", "gt_dir", "mask_dir", "dtu_root", "crop", "alignment")
+"""The arguments that name files or folders an evaluation reads (its outputs go neither over nor into them)."""
 
-        check_replaceable(path, (b"{", b"["), "JSON", "--json")
-        with writing(path):
-            atomic_write_text(path, json.dumps(clean(payload), indent=2) + "\n")
-        print(f"wrote {path}")
+
+def _inputs(args) -> list[str]:
+    return [v for k in _INPUTS if (v := getattr(args, k, None))]
+
+
+def _write_json(args, payload: dict) -> None:
+    """``--json``: ``payload`` below a ``written_by`` key that marks the file as this command's."""
+    if not args.json:
+        return
+
+    def clean(v):  # JSON has no NaN: write null
+        if isinstance(v, float) and not math.isfinite(v):
+            return None
+        if isinstance(v, dict):
+            return {k: clean(x) for k, x in v.items()}
+        if isinstance(v, list):
+            return [clean(x) for x in v]
+        return v
+
+    with claim_output_file(args.json, EVALUATION_JSON, _inputs(args), "--json"):
+        atomic_write_text(args.json, json.dumps({"written_by": JSON_MARKER, **clean(payload)}, indent=2) + "\n")
+    print(f"wrote {args.json}")
+
+
+def _error_plys(args) -> list[Path]:
+    out = Path(args.error_ply)
+    return [out.with_name(out.stem + suffix) for suffix in ("_precision.ply", "_recall.ply")]
 
 
 def _print_cloud(m, unit: str = "") -> None:
@@ -52,10 +68,9 @@ def _extras(dist, args, threshold: float, pred_pts, gt_pts) -> None:
     from mvsformerpp.evaluation.visualize import plot_pr_curves, write_error_ply
 
     if args.error_ply:
+        for path, pts, d in zip(_error_plys(args), (pred_pts, gt_pts), (dist.pred_to_gt, dist.gt_to_pred)):
+            write_error_ply(path, pts, d, threshold, _inputs(args))
         out = Path(args.error_ply)
-        for suffix, pts, d in (("_precision.ply", pred_pts, dist.pred_to_gt), ("_recall.ply", gt_pts, dist.gt_to_pred)):
-            with writing(out.with_name(out.stem + suffix)):
-                write_error_ply(out.with_name(out.stem + suffix), pts, d, threshold)
         print(f"wrote {out.stem}_precision.ply and {out.stem}_recall.ply (blue = 0, red >= threshold)")
     if args.plot:
         plot_pr_curves(args.plot, dist.curve(np.linspace(0, 5 * threshold, 101)[1:]), threshold)
@@ -63,21 +78,28 @@ def _extras(dist, args, threshold: float, pred_pts, gt_pts) -> None:
 
 
 def _checked(command):
-    """``command`` after a check that the files it will write replace nothing but their own kind (before the
-    evaluation, which can take minutes)."""
+    """``command`` after a check that every file it will write may be written (the output guard: no input, no
+    file of another kind or of the user's, no place under a file or in the package), before the evaluation,
+    which can take minutes."""
 
     def run(args) -> int:
-        from mvsformerpp.evaluation.visualize import PLOT_MAGICS  # scipy: not needed to build the parser
+        from mvsformerpp.evaluation.visualize import plot_format
 
+        inputs = _inputs(args)
+        outputs = []
         if getattr(args, "json", None):
-            check_replaceable(args.json, (b"{", b"["), "JSON", "--json")
+            outputs.append((args.json, EVALUATION_JSON, "--json"))
         if getattr(args, "plot", None):
-            suffix = Path(args.plot).suffix.lstrip(".").lower() or "png"
-            check_replaceable(args.plot, PLOT_MAGICS.get(suffix, (b"\x89PNG",)), "plot", "--plot")
+            outputs.append((args.plot, plot_kind(plot_format(args.plot)), "--plot"))
         if getattr(args, "error_ply", None):
-            out = Path(args.error_ply)
-            for suffix in ("_precision.ply", "_recall.ply"):
-                check_replaceable(out.with_name(out.stem + suffix), (b"ply",), "PLY", "--error-ply")
+            outputs += [(path, ERROR_CLOUD, "--error-ply") for path in _error_plys(args)]
+        if getattr(args, "error_ply_dir", None):
+            from mvsformerpp.evaluation.dtu import dtu_error_cloud_paths
+
+            outputs += [(path, ERROR_CLOUD, "--error-ply-dir") for scan in _dtu_scans(args)
+                        for path in dtu_error_cloud_paths(args.error_ply_dir, scan)]
+        for path, kind, flag in outputs:
+            check_output_file(path, kind, inputs, flag)
         return command(args)
 
     return run
@@ -92,7 +114,7 @@ def _cmd_cloud(args) -> int:
     dist = cloud_distances(pred, gt)
     m = dist.metrics(args.threshold)
     _print_cloud(m)
-    _write_json(args.json, m.to_dict())
+    _write_json(args, m.to_dict())
     _extras(dist, args, args.threshold, pred, gt)
     return 0
 
@@ -110,15 +132,21 @@ def _cmd_depth(args) -> int:
     print(format_depth_table(report))
     if report.missing:
         print(f"no prediction for {len(report.missing)} view(s), counted as empty: {', '.join(report.missing)}")
-    _write_json(args.json, {"overall": report.overall, "per_view": report.per_view, "missing": report.missing})
+    _write_json(args, {"overall": report.overall, "per_view": report.per_view, "missing": report.missing})
     return 0
 
 
+def _dtu_scans(args) -> list[int]:
+    from mvsformerpp.evaluation.dtu import DTU_TEST_SCANS
+
+    return args.scans or list(DTU_TEST_SCANS)
+
+
 def _cmd_dtu(args) -> int:
-    from mvsformerpp.evaluation.dtu import DTU_TEST_SCANS, dtu_mean, evaluate_dtu_scan, format_dtu_table
+    from mvsformerpp.evaluation.dtu import dtu_mean, evaluate_dtu_scan, format_dtu_table
 
     pred = Path(args.pred)
-    scans = args.scans or list(DTU_TEST_SCANS)
+    scans = _dtu_scans(args)
     if pred.is_file():
         if len(scans) != 1:
             raise InputError("a single PLY file needs exactly one --scans number", pred)
@@ -141,7 +169,7 @@ def _cmd_dtu(args) -> int:
         print(f"scan {scan}: acc {r.accuracy:.4f} comp {r.completeness:.4f} overall {r.overall:.4f} mm", flush=True)
         results.append(r)
     print(format_dtu_table(results))
-    _write_json(args.json, {"mean": dtu_mean(results), "scans": [r.to_dict() for r in results]})
+    _write_json(args, {"mean": dtu_mean(results), "scans": [r.to_dict() for r in results]})
     if args.plot:
         from mvsformerpp.evaluation.visualize import plot_per_scan
 
@@ -159,15 +187,15 @@ def _cmd_tnt(args) -> int:
 
     res = evaluate_tnt(args.pred, args.gt, args.scene, args.threshold, args.crop, args.alignment, args.refine)
     _print_cloud(res.metrics, "m")
-    _write_json(args.json, res.metrics.to_dict())
+    _write_json(args, res.metrics.to_dict())
     _extras(res.distances, args, res.metrics.threshold, res.pred_points, res.gt_points)
     return 0
 
 
 def _cmd_tnt_submit(args) -> int:
-    from mvsformerpp.evaluation.tnt_submission import package_tnt_submission, read_log
+    from mvsformerpp.evaluation.tnt_submission import check_scene_name, package_tnt_submission, read_log
 
-    items = args.items
+    items, also_read = args.items, []
     if all("=" in it for it in items):  # SCENE=RECONSTRUCT_DIR: the folder `reconstruct` writes
         from mvsformerpp.io.mvsnet import load_mvsnet_scene
         from mvsformerpp.io.output_folder import CLOUD
@@ -175,12 +203,15 @@ def _cmd_tnt_submit(args) -> int:
         entries = {}
         for it in items:
             name, folder = it.split("=", 1)
+            check_scene_name(name)
             entries[name] = (Path(folder) / CLOUD, load_mvsnet_scene(folder))
+            also_read.append(folder)
     elif len(items) % 3 == 0:
-        entries = {items[i]: (items[i + 1], read_log(items[i + 2])) for i in range(0, len(items), 3)}
+        entries = {check_scene_name(items[i]): (items[i + 1], read_log(items[i + 2])) for i in range(0, len(items), 3)}
+        also_read = [items[i + 2] for i in range(0, len(items), 3)]  # the .log files
     else:
         raise InputError("give SCENE PLY LOG triples or SCENE=RECONSTRUCT_DIR entries")
-    out = package_tnt_submission(args.out_dir, entries, overwrite=args.overwrite)
+    out = package_tnt_submission(args.out_dir, entries, overwrite=args.overwrite, inputs=tuple(also_read))
     print(f"packaged {len(entries)} scene(s) in {out}")
     return 0
 
@@ -192,7 +223,7 @@ def _cmd_eth3d(args) -> int:
 
     rows = evaluate_eth3d(args.pred, args.gt, tuple(args.tolerances))
     print(format_eth3d_table(rows))
-    _write_json(args.json, [r.to_dict() for r in rows])
+    _write_json(args, {"tolerances": [r.to_dict() for r in rows]})
     return 0
 
 

@@ -17,7 +17,9 @@ def register(subparsers: argparse._SubParsersAction) -> None:
     p.add_argument("folder", metavar="OUT", help="output folder of `mvsformerpp reconstruct`")
     p.add_argument("--to", choices=("colmap",), required=True, help="target format (colmap)")
     p.add_argument("target", metavar="DIR", help="workspace folder to create (must be empty or absent)")
-    p.add_argument("--overwrite", action="store_true", help="replace DIR if it is not empty")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace DIR, a workspace this command wrote before (the old one goes once the new one is "
+                        "complete)")
     p.add_argument("--quiet", action="store_true", help="print nothing")
     p.set_defaults(func=run)
 

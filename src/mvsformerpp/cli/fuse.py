@@ -32,7 +32,7 @@ def register(sub: argparse._SubParsersAction) -> None:
                         "reconstruct run records in config.json, so maps upsampled to large photos fuse at the size "
                         "they were computed at; 0: at the size they are stored)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, on_memory_error="lower --memory-gb or --max-size")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -23,7 +23,8 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                    "on the surface, coarser only where the grid would not fit in memory)")
     p.add_argument("--resolution", type=int, metavar="N",
                    help="tsdf: instead, N voxels along the longest side of the scene box")
-    p.add_argument("--truncation", type=float, default=4.0, metavar="VOXELS", help="tsdf: truncation (default 4)")
+    p.add_argument("--truncation", type=float, default=4.0, metavar="VOXELS",
+                   help="tsdf: truncation in voxels, at most 100 (default 4)")
     p.add_argument("--min-conf", type=float, default=0.0, metavar="C",
                    help="tsdf: ignore depths at or below this confidence (default 0)")
     p.add_argument("--depth", type=int, default=10, help="poisson: octree depth (default 10)")
@@ -33,14 +34,16 @@ def register(subparsers: argparse._SubParsersAction) -> None:
                         "point spacing and the octree cell; default 2, 0 = keep)")
     p.add_argument("--trim", type=float, default=0.0, metavar="PERCENT",
                    help="poisson: also cut the lowest-density PERCENT of vertices (default 0)")
-    p.add_argument("--threads", type=int, default=1, help="poisson: worker threads (default 1)")
+    p.add_argument("--threads", type=int, default=1,
+                   help="poisson: worker threads, at most the CPU cores this process may use (default 1)")
     p.add_argument("--device", default="cpu", help="tsdf: torch device (cpu, cuda)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, on_memory_error="choose a larger --voxel (tsdf) or a smaller --depth (poisson)")
 
 
 def run(args: argparse.Namespace) -> int:
     import math
+    import os
 
     from mvsformerpp.errors import InputError
     from mvsformerpp.meshing.poisson import PoissonConfig
@@ -62,8 +65,6 @@ def run(args: argparse.Namespace) -> int:
             raise InputError(f"--resolution {args.resolution} needs up to {need / 2**30:.1f} GB for the TSDF grid "
                              f"({BYTES_PER_VOXEL} bytes per voxel), more than the {have / 2**30:.1f} GB free; "
                              f"choose at most --resolution {int(round((have / BYTES_PER_VOXEL) ** (1 / 3), 6))}")
-    if not (math.isfinite(args.truncation) and args.truncation > 0):
-        raise InputError(f"--truncation must be a positive number of voxels, got {args.truncation}")
     if not 0 <= args.min_conf < 1:
         raise InputError(f"--min-conf must be a confidence in [0, 1), got {args.min_conf}")
     if not 1 <= args.depth <= MAX_POISSON_DEPTH:
@@ -73,8 +74,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError(f"--trim must be a percentage in [0, 100), got {args.trim}")
     if not (math.isfinite(args.max_distance) and args.max_distance >= 0):
         raise InputError(f"--max-distance must be a number of cells >= 0 (0 keeps everything), got {args.max_distance}")
-    if args.threads < 1:
-        raise InputError(f"--threads must be at least 1, got {args.threads}")
+    cores = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else (os.cpu_count() or 1)
+    if not 1 <= args.threads <= cores:
+        raise InputError(f"--threads must be 1 .. {cores} (the CPU cores this process may use: MeshLab's threads "
+                         f"spin while they wait, so more threads than cores stall), got {args.threads}")
     config = MeshConfig(
         method=args.method, device=args.device,
         tsdf=TSDFConfig(voxel=args.voxel, resolution=args.resolution, truncation=args.truncation,

@@ -86,4 +86,4 @@ def register(subparsers) -> None:
     p.add_argument("-o", "--output", required=True, metavar="OUT", help="output folder")
     add_model_args(p, default_preset=ReconstructConfig.preset)
     add_run_args(p)
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, on_memory_error="lower --max-size or --memory-gb")

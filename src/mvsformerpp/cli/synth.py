@@ -18,7 +18,9 @@ def register(sub: argparse._SubParsersAction) -> None:
         "ground-truth depth (depth_gt/*.pfm), masks and the ground-truth surface (gt_surface.ply). "
         "With --scenes K, writes scene_0000 ... and scenes.txt (a training set).",
     )
-    p.add_argument("output", help="output folder")
+    p.add_argument("output", metavar="OUT",
+                   help="output folder: new or empty, or one that an interrupted synth run of the same settings "
+                        "left, which this completes")
     p.add_argument("--seed", type=int, default=0)
     p.add_argument("--views", type=int, default=7)
     p.add_argument("--height", type=int, default=256)
@@ -41,16 +43,18 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plain-walls", type=float, default=0.0, metavar="P",
                    help="train style: probability in [0, 1] that each wall and ceiling of a room or table is painted "
                    "one light colour, with no texture to match (most real rooms; default 0: as drawn)")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, on_memory_error="lower --height, --width or --views")
 
 
 def run(args: argparse.Namespace) -> int:
     from mvsformerpp.errors import InputError
     from mvsformerpp.synth import generate_dataset, generate_scene
-    from mvsformerpp.utils.output_guard import claim_output_folder
+    from mvsformerpp.synth.scenes import MAX_SEED
 
-    if args.seed < 0:
-        raise InputError(f"--seed must be >= 0, got {args.seed}")
+    if args.scenes >= 1 and not 0 <= args.seed <= MAX_SEED - 1000 * (args.scenes - 1):
+        raise InputError(f"--seed must be 0 .. {MAX_SEED - 1000 * (args.scenes - 1)} with --scenes {args.scenes} "
+                         f"(scene k renders from seed + 1000 k, and the renderer's generators need seeds below 2^31), "
+                         f"got {args.seed}")
     if args.objects is not None and not 0 <= args.objects <= MAX_OBJECTS:
         raise InputError(f"--objects must be 0 .. {MAX_OBJECTS} (every ray is tested against every object), got "
                          f"{args.objects}")
@@ -78,10 +82,9 @@ def run(args: argparse.Namespace) -> int:
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
               style=args.style, sensor_width=args.sensor_width, detail=args.detail, layout=args.layout,
               plain_walls=args.plain_walls)
-    with claim_output_folder(args.output, kind="synth", reuse=False):
-        if args.scenes == 1:
-            out = generate_scene(args.output, seed=args.seed, **kw)
-        else:
-            out = generate_dataset(args.output, args.scenes, seed=args.seed, **kw)
+    if args.scenes == 1:
+        out = generate_scene(args.output, seed=args.seed, **kw)
+    else:
+        out = generate_dataset(args.output, args.scenes, seed=args.seed, **kw)
     print(f"wrote {args.scenes} scene(s) to {out}")
     return 0

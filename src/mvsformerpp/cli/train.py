@@ -28,7 +28,8 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--resume", action="store_true", help="continue the run in RUN_DIR from its last checkpoint")
     p.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                    help="override any config field (YAML value), e.g. --set lr=1e-4 --set loss_weights=[0,0,0,1]")
-    p.set_defaults(func=run)
+    p.set_defaults(func=run, on_memory_error="lower --batch-size, --height/--width or --views",
+                   on_interrupt="continue the run with the same command and --resume (from its last checkpoint)")
 
 
 def run(args: argparse.Namespace) -> int:

@@ -156,6 +156,12 @@ def evaluate_depth_dirs(
             sums = depth_sums(np.zeros_like(gt), gt, mask, thresholds, interval, inlier_ratio)
         per_view[stem] = sums.metrics()
         total.add(sums)
+    if total.valid == 0:
+        if mask_dir is not None:
+            raise InputError("the masks mark no pixel of any view where the ground truth has a depth, so there is "
+                             "nothing to evaluate; check the masks (non-zero = evaluate) or leave out --mask-dir",
+                             mask_dir)
+        raise InputError("the ground truth has no valid depth (0 or non-finite everywhere) in any view", gt_dir)
     return DepthReport(per_view=per_view, overall=total.metrics(), missing=missing)
 
 

@@ -215,15 +215,20 @@ def evaluate_dtu_points(
     return summarize_dtu(dtu_distances(pred, gt, obs, plane, dst, max_dist, seed), scan, num_pred=len(pred))
 
 
-def write_dtu_error_clouds(out_dir: str | Path, scan: int, dist: DTUDistances, scale: float = 2.0) -> list[Path]:
-    """Write ``scan{N}_accuracy.ply`` (used prediction points) and ``scan{N}_completeness.ply`` (used
-    ground-truth points), coloured blue (0 mm) to red (>= ``scale`` mm), with the distance as ``error``."""
+def dtu_error_cloud_paths(out_dir: str | Path, scan: int) -> list[Path]:
+    """``scan{N}_accuracy.ply`` and ``scan{N}_completeness.ply`` in ``out_dir``."""
+    return [Path(out_dir) / f"scan{scan}_accuracy.ply", Path(out_dir) / f"scan{scan}_completeness.ply"]
 
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    paths = [out / f"scan{scan}_accuracy.ply", out / f"scan{scan}_completeness.ply"]
-    write_error_ply(paths[0], dist.pred[dist.pred_used], dist.pred_dist[dist.pred_used], scale)
-    write_error_ply(paths[1], dist.gt[dist.gt_used], dist.gt_dist[dist.gt_used], scale)
+
+def write_dtu_error_clouds(out_dir: str | Path, scan: int, dist: DTUDistances, scale: float = 2.0,
+                           inputs: tuple[str | Path, ...] = ()) -> list[Path]:
+    """Write ``scan{N}_accuracy.ply`` (used prediction points) and ``scan{N}_completeness.ply`` (used
+    ground-truth points), coloured blue (0 mm) to red (>= ``scale`` mm), with the distance as ``error``
+    (never over ``inputs`` or a file that is not an error cloud of this package's)."""
+
+    paths = dtu_error_cloud_paths(out_dir, scan)
+    write_error_ply(paths[0], dist.pred[dist.pred_used], dist.pred_dist[dist.pred_used], scale, inputs)
+    write_error_ply(paths[1], dist.gt[dist.gt_used], dist.gt_dist[dist.gt_used], scale, inputs)
     return paths
 
 
@@ -252,7 +257,7 @@ def evaluate_dtu_scan(
     dist = dtu_distances(pred, gt, obs, plane, dst=dst, max_dist=max_dist, seed=seed)
     result = summarize_dtu(dist, scan, num_pred=len(pred))
     if error_ply_dir is not None:
-        write_dtu_error_clouds(error_ply_dir, scan, dist)
+        write_dtu_error_clouds(error_ply_dir, scan, dist, inputs=(pred_ply, dtu_root))
     return result
 
 

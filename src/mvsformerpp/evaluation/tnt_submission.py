@@ -16,6 +16,7 @@ import numpy as np
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
+from mvsformerpp.utils.output_guard import child, claim_output_folder
 
 
 def write_log(path: str | Path, poses: np.ndarray) -> None:
@@ -60,26 +61,50 @@ def scene_poses(scene: Scene) -> np.ndarray:
     return poses
 
 
+TNT_SCENES: tuple[str, ...] = (
+    "Barn", "Caterpillar", "Church", "Courthouse", "Ignatius", "Meetingroom", "Truck",  # training
+    "Family", "Francis", "Horse", "Lighthouse", "M60", "Panther", "Playground", "Train",  # intermediate
+    "Auditorium", "Ballroom", "Courtroom", "Museum", "Palace", "Temple",  # advanced
+)
+"""The benchmark's scenes: a submission holds ``{Scene}.ply`` and ``{Scene}.log`` for some of them."""
+
+
+def check_scene_name(name: str) -> str:
+    """``name`` if it is one of :data:`TNT_SCENES`, else an :class:`InputError` naming the nearest."""
+    if name in TNT_SCENES:
+        return name
+    near = [s for s in TNT_SCENES if s.lower() == name.lower()]
+    hint = f"did you mean {near[0]}? " if near else ""
+    raise InputError(f"{name!r} is not a Tanks-and-Temples scene; {hint}the benchmark's scenes are "
+                     f"{', '.join(TNT_SCENES)}")
+
+
 def package_tnt_submission(out_dir: str | Path, entries: dict[str, tuple[str | Path, Scene | np.ndarray]],
-                           overwrite: bool = False) -> Path:
+                           overwrite: bool = False, inputs: tuple[str | Path, ...] = ()) -> Path:
     """Write a leaderboard folder: ``{Scene}.ply`` + ``{Scene}.log`` for each ``scene -> (ply, cameras)``.
 
     cameras: a :class:`Scene` (its views in the benchmark's image order) or camera-to-world poses
-    [N,4,4]. Existing files are kept unless ``overwrite``. Returns ``out_dir``.
+    [N,4,4]. Scene names are the benchmark's (:data:`TNT_SCENES`). The folder is claimed as every output
+    folder is (:func:`~mvsformerpp.utils.output_guard.claim_output_folder`): new, empty or a submission
+    folder written here before, outside the PLY files and ``inputs`` (reconstruction folders). Scenes
+    already packaged are kept unless ``overwrite``. Returns ``out_dir``.
     """
-    out = Path(out_dir)
+
     if not entries:
         raise InputError("nothing to package: give at least one scene")
-    out.mkdir(parents=True, exist_ok=True)
-    for name, (ply, cams) in entries.items():
-        ply = Path(ply)
-        if not ply.is_file():
+    for name, (ply, _) in entries.items():
+        check_scene_name(name)
+        if not Path(ply).is_file():
             raise InputError(f"the reconstruction of scene {name} does not exist", ply)
-        dst_ply, dst_log = out / f"{name}.ply", out / f"{name}.log"
-        if not overwrite and (dst_ply.exists() or dst_log.exists()):
-            raise InputError(f"{name} is already packaged here; pass overwrite=True (--overwrite) to replace it", out)
-        poses = scene_poses(cams) if isinstance(cams, Scene) else np.asarray(cams)
-        write_log(dst_log, poses)
-        with ply.open("rb") as src, atomic_open(dst_ply, "wb") as f:
-            shutil.copyfileobj(src, f, length=1 << 24)
-    return out
+    reads = [*inputs, *(ply for ply, _ in entries.values())]
+    with claim_output_folder(out_dir, reads, kind="tnt-submit", flag="OUT_DIR") as out:
+        for name, (ply, cams) in entries.items():
+            dst_ply, dst_log = child(out, f"{name}.ply", "scene name"), child(out, f"{name}.log", "scene name")
+            if not overwrite and (dst_ply.exists() or dst_log.exists()):
+                raise InputError(f"{name} is already packaged here; pass overwrite=True (--overwrite) to replace it",
+                                 out)
+            poses = scene_poses(cams) if isinstance(cams, Scene) else np.asarray(cams)
+            write_log(dst_log, poses)
+            with Path(ply).open("rb") as src, atomic_open(dst_ply, "wb") as f:
+                shutil.copyfileobj(src, f, length=1 << 24)
+    return Path(out_dir)

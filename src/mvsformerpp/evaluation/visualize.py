@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from pathlib import Path
 
 import numpy as np
 
-from mvsformerpp.errors import MissingDependencyError
+from mvsformerpp.errors import InputError, MissingDependencyError
 from mvsformerpp.io.ply import write_ply
 from mvsformerpp.utils.atomic import atomic_open
-from mvsformerpp.utils.output_guard import check_replaceable
+from mvsformerpp.utils.file_kinds import ERROR_CLOUD, PLOT_FORMATS, PLOT_MARKER, plot_kind
+from mvsformerpp.utils.output_guard import claim_output_file
 
 # Colour ramp for errors, blue (0) -> cyan -> green -> yellow -> red (>= max): anchors at equal steps.
 _RAMP = np.array([[0, 0, 255], [0, 255, 255], [0, 255, 0], [255, 255, 0], [255, 0, 0]], dtype=np.float64)
@@ -23,13 +25,16 @@ def error_colors(distances: np.ndarray, max_dist: float) -> np.ndarray:
     return np.round(_RAMP[lo] * (1 - w) + _RAMP[lo + 1] * w).astype(np.uint8)
 
 
-def write_error_ply(path: str | Path, points: np.ndarray, distances: np.ndarray, max_dist: float) -> None:
-    """Write points coloured by their error, with the error itself as a float property ``error``."""
+def write_error_ply(path: str | Path, points: np.ndarray, distances: np.ndarray, max_dist: float,
+                    inputs: Sequence[str | Path] = ()) -> None:
+    """Write points coloured by their error, with the error itself as a float property ``error``; ``path`` is
+    new or an error cloud this package wrote, and none of ``inputs`` (:mod:`mvsformerpp.utils.output_guard`)."""
     points, distances = np.asarray(points), np.asarray(distances)
     if len(points) != len(distances):
         raise ValueError(f"{len(points)} points but {len(distances)} distances")
-    check_replaceable(path, (b"ply",), "PLY", "--error-ply")
-    write_ply(path, points, rgb=error_colors(distances, max_dist), extra={"error": distances.astype(np.float32)})
+    with claim_output_file(path, ERROR_CLOUD, inputs, "--error-ply"):
+        write_ply(path, points, rgb=error_colors(distances, max_dist), extra={"error": distances.astype(np.float32)},
+                  kind=ERROR_CLOUD)
 
 
 def _pyplot():
@@ -43,16 +48,23 @@ def _pyplot():
     return plt
 
 
-# What a plot file of each format starts with: only such a file is replaced.
-PLOT_MAGICS = {"png": (b"\x89PNG",), "pdf": (b"%PDF",), "svg": (b"<?xml", b"<svg"), "jpg": (b"\xff\xd8",),
-               "jpeg": (b"\xff\xd8",), "eps": (b"%!PS",), "ps": (b"%!PS",)}
+def plot_format(path: str | Path) -> str:
+    """The format of a plot file by its suffix (png without one); InputError for a format with no creator field
+    to mark it by (:data:`~mvsformerpp.utils.file_kinds.PLOT_FORMATS`)."""
+    suffix = Path(path).suffix.lstrip(".").lower() or "png"
+    if suffix not in PLOT_FORMATS:
+        raise InputError(f"--plot {path}: cannot write a .{suffix} plot; name it .{', .'.join(PLOT_FORMATS)}")
+    return suffix
 
 
 def _save(fig, path: str | Path) -> None:
-    suffix = Path(path).suffix.lstrip(".").lower() or "png"
-    check_replaceable(path, PLOT_MAGICS.get(suffix, (b"\x89PNG", b"%PDF", b"<?xml", b"<svg")), "plot", "--plot")
-    with atomic_open(path, "wb") as f:
-        fig.savefig(f, format=suffix, dpi=120, bbox_inches="tight")
+    fmt = plot_format(path)
+    if fmt in ("jpg", "jpeg"):  # (JPEG: a comment; the others: the creator in their metadata)
+        marked = {"pil_kwargs": {"comment": PLOT_MARKER.encode()}}
+    else:
+        marked = {"metadata": {"Software" if fmt == "png" else "Creator": PLOT_MARKER}}
+    with claim_output_file(path, plot_kind(fmt), flag="--plot"), atomic_open(path, "wb") as f:
+        fig.savefig(f, format=fmt, dpi=120, bbox_inches="tight", **marked)
 
 
 def plot_per_scan(path: str | Path, names: list[str], values: dict[str, list[float]], ylabel: str = "mm") -> None:

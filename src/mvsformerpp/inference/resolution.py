@@ -190,3 +190,10 @@ def available_memory_bytes(device: torch.device) -> float:
     except OSError:
         pass
     return 8e9  # unknown platform: assume a modest machine
+
+
+def human_size(nbytes: float) -> str:
+    """``nbytes`` for a message: GB with one decimal from 1 GB up, else whole MB, below 1 MB whole KB (at least 1)."""
+    if nbytes >= 2**30:
+        return f"{nbytes / 2**30:.1f} GB"
+    return f"{round(nbytes / 2**20)} MB" if nbytes >= 2**20 else f"{max(1, round(nbytes / 2**10))} KB"

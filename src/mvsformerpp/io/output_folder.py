@@ -41,11 +41,12 @@ from mvsformerpp.io.pfm import read_pfm, write_pfm
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
 from mvsformerpp.utils.colormap import confidence_to_png, depth_to_png
+from mvsformerpp.utils.file_kinds import HTML_REPORT, POINT_CLOUD
 
 CAMS, IMAGES, DEPTH, CONFIDENCE = "cams", "images", "depth_est", "confidence"
 DEPTH_VIS, CONFIDENCE_VIS = "depth_vis", "confidence_vis"
-CLOUD, REPORT, CONFIG, SUMMARY, VIEWS, PROGRESS = ("fused.ply", "report.html", "config.json", "summary.json",
-                                                  "views.json", "progress.json")
+CONFIG, SUMMARY, VIEWS, PROGRESS = "config.json", "summary.json", "views.json", "progress.json"
+CLOUD, REPORT = POINT_CLOUD.run_name, HTML_REPORT.run_name  # fused.ply, report.html: no other kind takes these
 
 
 def require_depth_maps(root: str | Path) -> Path:

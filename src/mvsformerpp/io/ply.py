@@ -14,6 +14,7 @@ import numpy as np
 
 from mvsformerpp.errors import FormatError
 from mvsformerpp.utils.atomic import atomic_open
+from mvsformerpp.utils.file_kinds import POINT_CLOUD, FileKind
 
 _PLY_TYPES = {
     "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
@@ -60,8 +61,9 @@ def vertex_records(
     return data
 
 
-def _header(record: np.dtype, count: str) -> bytes:
-    lines = ["ply", "format binary_little_endian 1.0", "comment written by mvsformerpp", f"element vertex {count}"]
+def _header(record: np.dtype, count: str, kind: FileKind) -> bytes:
+    lines = ["ply", "format binary_little_endian 1.0", kind.marker.decode("ascii").rstrip("\n"),
+             f"element vertex {count}"]
     lines += [f"property {_NUMPY_TO_PLY[record[name].str[1:]]} {name}" for name in record.names]
     lines.append("end_header")
     return ("\n".join(lines) + "\n").encode("ascii")
@@ -74,15 +76,18 @@ def write_ply(
     normals: np.ndarray | None = None,
     extra: dict[str, np.ndarray] | None = None,
     faces: np.ndarray | None = None,
+    kind: FileKind = POINT_CLOUD,
 ) -> None:
     """Write a binary little-endian PLY point cloud (or mesh, with ``faces``) atomically.
 
     xyz: [N,3] (stored as float32); rgb: [N,3] uint8 or floats in [0,1]; normals: [N,3];
     extra: name -> [N] scalar arrays (e.g. ``confidence``), stored with their own dtype;
-    faces: [M,3] vertex indices of triangles (a ``face`` element with ``vertex_indices`` lists).
+    faces: [M,3] vertex indices of triangles (a ``face`` element with ``vertex_indices`` lists);
+    kind: what the file is (:mod:`mvsformerpp.utils.file_kinds`), named in its header so that only a
+    command writing this kind replaces it.
     """
     data = vertex_records(xyz, rgb, normals, extra)
-    header = _header(data.dtype, str(len(data)))
+    header = _header(data.dtype, str(len(data)), kind)
     tris = None
     if faces is not None:
         faces = np.asarray(faces)
@@ -113,8 +118,9 @@ class PlyStreamWriter:
     (:mod:`mvsformerpp.utils.atomic`), so an error leaves no partial cloud behind.
     """
 
-    def __init__(self, path: str | Path):
+    def __init__(self, path: str | Path, kind: FileKind = POINT_CLOUD):
         self.path = Path(path)
+        self.kind = kind
         self.count = 0
         self._record: np.dtype | None = None
         self._ctx = None
@@ -128,7 +134,7 @@ class PlyStreamWriter:
 
     def _start(self, record: np.dtype) -> None:
         self._record = record
-        header = _header(record, " " * _COUNT_WIDTH)
+        header = _header(record, " " * _COUNT_WIDTH, self.kind)
         self._count_offset = header.index(b"element vertex ") + len(b"element vertex ")
         self._file.write(header)
 

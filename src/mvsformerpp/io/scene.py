@@ -65,6 +65,23 @@ class View:
 
 MIN_FIELD_OF_VIEW = 0.01
 """Degrees: narrower than any lens (a 2000 mm telephoto sees about 1 degree); a wrong focal length."""
+MAX_FIELD_OF_VIEW = 170.0
+"""Degrees: wider than a pinhole camera's photo can be (the projection diverges at 180); a wrong focal length."""
+DEPTH_LIMITS = (1e-12, 1e12)
+"""Depths (and a depth range's ends) the network computes with in single precision, inverses and products
+included; beyond them they round to 0 or overflow."""
+MAX_CENTRE_RATIO = 1e5
+"""Largest distance of a camera centre from the origin, in units of the camera's far depth: farther, the
+single-precision world coordinates of the scene's points are coarser than about a percent of their depth."""
+
+
+def check_depth_range(near: float, far: float, what: str, where: Path | None = None) -> None:
+    """Refuse a depth range outside :data:`DEPTH_LIMITS` (it must already satisfy 0 < near < far)."""
+    lo, hi = DEPTH_LIMITS
+    if not (lo <= near and far <= hi):
+        raise InputError(f"{what} {near:g}..{far:g} must lie within {lo:g}..{hi:g}: the network computes depths and "
+                         "their inverses in single precision, where values beyond round to 0 or overflow (give the "
+                         "scene in other units?)", where)
 
 
 @dataclass
@@ -100,6 +117,12 @@ class Scene:
                 raise InputError(f"{label}: a focal length of {max(v.K[0, 0], v.K[1, 1]):.6g} px for a {v.width}x"
                                  f"{v.height} photo is a field of view of {fov:.3g} degrees (below "
                                  f"{MIN_FIELD_OF_VIEW} degrees): the intrinsics are wrong (units? scale?)", where)
+            fov = np.degrees(2 * np.arctan(max(v.width, v.height) / 2 / min(v.K[0, 0], v.K[1, 1])))
+            if fov > MAX_FIELD_OF_VIEW:
+                raise InputError(f"{label}: a focal length of {min(v.K[0, 0], v.K[1, 1]):.6g} px for a {v.width}x"
+                                 f"{v.height} photo is a field of view of {fov:.4g} degrees (above "
+                                 f"{MAX_FIELD_OF_VIEW:g}, wider than a pinhole photo can be): the intrinsics are wrong "
+                                 "(units? scale?)", where)
             bad = [j for j in v.neighbors if not 0 <= j < n or j == i]
             if bad:
                 raise InputError(f"{label}: neighbour indices {bad} are not other views of the scene", where)
@@ -112,4 +135,13 @@ class Scene:
                     raise InputError(
                         f"{label}: depth range {v.depth_min}..{v.depth_max} must satisfy 0 < min < max", where
                     )
+                check_depth_range(v.depth_min, v.depth_max, f"{label}: depth range", where)
+            far = v.depth_max if v.depth_max is not None and 0 < v.depth_max < np.inf else None
+            centre = float(np.linalg.norm(v.center))
+            if centre > (MAX_CENTRE_RATIO * far if far else DEPTH_LIMITS[1]):
+                limit = f"{MAX_CENTRE_RATIO:g} times its far depth {far:g}" if far else f"{DEPTH_LIMITS[1]:g}"
+                raise InputError(f"{label}: the camera centre lies {centre:.3g} from the origin, more than {limit}: in "
+                                 "single precision the scene's points would be placed no finer than about a percent "
+                                 "of their depth. Move the origin into the scene (subtract one offset from every "
+                                 "camera position)", where)
         return self

@@ -89,7 +89,11 @@ def plan_poisson(xyz: np.ndarray, normals: np.ndarray, config: PoissonConfig = P
     lo, hi = surface_box(xyz[oriented])
     inside = oriented & (xyz >= lo).all(axis=1) & (xyz <= hi).all(axis=1)
     pts = xyz[inside].astype(np.float64)
-    cell = 1.1 * float(np.ptp(pts, axis=0).max()) / 2**config.depth
+    extent = float(np.ptp(pts, axis=0).max()) if len(pts) else 0.0
+    if not extent > 0:
+        raise InputError(f"the cloud's {len(pts):,} oriented points on its surface all lie at one place: there is no "
+                         "surface for Poisson to fit; check the depth maps (report.html) or mesh with --method tsdf")
+    cell = 1.1 * extent / 2**config.depth
     occupied = count_voxels(pts, cell)
     thin, n = None, len(pts)
     if n > 4 * occupied:  # far more samples than cells: their means at half a cell make the same surface
@@ -133,7 +137,12 @@ def screened_poisson(xyz: np.ndarray, normals: np.ndarray, colors: np.ndarray | 
     if config.trim > 0:
         density = m.vertex_scalar_array()
         keep &= density >= np.percentile(density, config.trim)
-    return _drop_fragments(_keep_vertices(mesh, keep), config.min_fragment)
+    trimmed = _drop_fragments(_keep_vertices(mesh, keep), config.min_fragment)
+    if len(trimmed.faces) == 0 and len(mesh.faces) > 0:
+        raise InputError(f"trimming removed every triangle of the Poisson surface (--trim {config.trim:g}, "
+                         f"--max-distance {config.max_distance:g}); use a smaller --trim or --max-distance, or "
+                         "--watertight to keep the closed surface")
+    return trimmed
 
 
 def _near_samples(vertices: np.ndarray, samples: np.ndarray, cell: float, max_distance: float) -> np.ndarray:

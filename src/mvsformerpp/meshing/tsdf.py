@@ -20,6 +20,13 @@ from mvsformerpp.errors import InputError
 from mvsformerpp.fusion.core import FusionView
 from mvsformerpp.geometry.camera import depth_to_points, project
 
+MAX_TRUNCATION = 100.0
+"""Largest truncation in voxels: the grid is padded by the band on every side, and a wider band smears every
+surface over more voxels than a scene box holds along its side."""
+MIN_VOXELS_PER_SIDE = 8
+"""Fewest voxels along the scene box's longest side (what ``--resolution`` allows): coarser grids hold no
+surface for marching cubes to find."""
+
 
 @dataclass(frozen=True)
 class TSDFConfig:
@@ -32,7 +39,8 @@ class TSDFConfig:
     resolution: int | None = None
     """Voxels along the longest side of the scene box when ``voxel`` is None (None: from the sampling)."""
     truncation: float = 4.0
-    """Truncation distance in voxels (the band around the surface that a depth sample updates)."""
+    """Truncation distance in voxels (the band around the surface that a depth sample updates), at most
+    :data:`MAX_TRUNCATION`."""
     min_confidence: float = 0.0
     """Depth pixels at or below this confidence are ignored (others weigh by their confidence)."""
     max_voxels: int = 400_000_000
@@ -125,22 +133,29 @@ def plan_grid(views: list[FusionView], config: TSDFConfig = TSDFConfig(),
         voxel, note = PIXELS_PER_VOXEL * pixel_footprint(views), f"{PIXELS_PER_VOXEL:g} pixel footprints"
     if not voxel > 0:
         raise InputError(f"--voxel must be positive, got {voxel}")
+    if not 0 < config.truncation <= MAX_TRUNCATION:
+        raise InputError(f"--truncation must be a number of voxels in (0, {MAX_TRUNCATION:g}], got "
+                         f"{config.truncation:g} (the grid is padded by it on every side)")
+    if config.voxel and extent / voxel < MIN_VOXELS_PER_SIDE:
+        raise InputError(f"--voxel {voxel:g} is larger than an eighth of the scene box's longest side "
+                         f"({extent:.4g}): the grid would have fewer than {MIN_VOXELS_PER_SIDE} voxels across the "
+                         f"scene and no surface to extract; choose at most --voxel {extent / MIN_VOXELS_PER_SIDE:.4g}")
 
     def dims_for(v: float) -> np.ndarray:
         t = config.truncation * v
-        return np.maximum(np.ceil((hi - lo + 2 * t) / v).astype(np.int64), 2)
+        return np.maximum(np.ceil((hi - lo + 2 * t) / v), 2)  # (floats: no overflow before the check below)
 
     dims = dims_for(voxel)
-    if int(np.prod(dims)) > config.max_voxels:
+    if float(np.prod(dims)) > config.max_voxels:
         needed = voxel * (np.prod(dims) / config.max_voxels) ** (1 / 3)
         if config.voxel or config.resolution:
-            raise InputError(f"a {dims[0]}x{dims[1]}x{dims[2]} voxel grid is too large at --voxel {voxel:.4g}; "
-                             f"use a larger voxel (at least {needed:.4g})")
-        while int(np.prod(dims)) > config.max_voxels:
+            raise InputError(f"a {dims[0]:.0f}x{dims[1]:.0f}x{dims[2]:.0f} voxel grid is too large at --voxel "
+                             f"{voxel:.4g}; use a larger voxel (at least {needed:.4g})")
+        while float(np.prod(dims)) > config.max_voxels:
             voxel, needed = needed, needed * 1.01
             dims = dims_for(voxel)
         note += f", coarsened to fit {config.max_voxels:,} voxels"
-    return GridPlan(lo - config.truncation * voxel, voxel, dims, note)
+    return GridPlan(lo - config.truncation * voxel, voxel, dims.astype(np.int64), note)
 
 
 def integrate(views: list[FusionView], config: TSDFConfig = TSDFConfig(), progress=None,

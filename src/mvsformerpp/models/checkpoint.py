@@ -63,6 +63,17 @@ def _refused_code(message: str) -> bool:
     return bool(_REFUSED.search(message)) or (operand is not None and int(operand.group(1)) in _CODE_OPCODES)
 
 
+def require_checkpoint_file(path: str | Path) -> Path:
+    """``path`` as a checkpoint file that exists; else an :class:`InputError` that says what it is instead."""
+    path = Path(path)
+    if path.is_dir():
+        raise InputError("this is a folder, not a checkpoint file; give the weights file itself (.pth, .pt, .ckpt or "
+                         ".safetensors; a training run keeps checkpoints/last.safetensors)", path)
+    if not path.is_file():
+        raise InputError("checkpoint file not found", path)
+    return path
+
+
 def read_torch_file(path: str | Path) -> object:
     """``torch.load(weights_only=True)`` on the CPU; the names of :data:`RECORDED_GLOBALS` load as inert records.
 
@@ -158,9 +169,7 @@ def load_checkpoint(model: torch.nn.Module, path: str | Path) -> torch.nn.Module
 def read_checkpoint(path: str | Path) -> tuple[dict[str, torch.Tensor], ModelConfig | None]:
     """The tensors of any checkpoint :func:`load_checkpoint` takes, under our key names, and the network
     config a safetensors file stores (None for other files)."""
-    path = Path(path)
-    if not path.is_file():
-        raise InputError("checkpoint file not found", path)
+    path = require_checkpoint_file(path)
     if path.suffix == ".safetensors":
         return read_safetensors(path)
     try:

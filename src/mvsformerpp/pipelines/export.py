@@ -16,20 +16,19 @@ it as their own):
 
 COLMAP's pixel convention (the top-left pixel's centre at (0.5, 0.5)) is this package's, so K is
 written as it is. The workspace is built in a temporary folder beside the target and renamed into
-place: an interrupted export leaves no half workspace.
+place (:mod:`mvsformerpp.utils.output_tree`): an interrupted export leaves no half workspace, and the
+old workspace that ``--overwrite`` replaces goes only once the new one is in place.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
-import tempfile
 from pathlib import Path
 
 import numpy as np
 import torch
 
-from mvsformerpp.errors import InputError
 from mvsformerpp.fusion.normals import normal_map
 from mvsformerpp.geometry.frustum import FRUSTUM_FACES, frustum_points
 from mvsformerpp.io.colmap_dense import write_colmap_array
@@ -42,41 +41,29 @@ from mvsformerpp.io.colmap_model import (
     write_model,
 )
 from mvsformerpp.io.depth_folder import load_depth_folder
-from mvsformerpp.io.output_folder import require_depth_maps
+from mvsformerpp.io.output_folder import read_run_record, require_depth_maps
 from mvsformerpp.io.ply import write_ply
+from mvsformerpp.utils.file_kinds import CAMERA_FRUSTUMS, PLY_MARKER
+from mvsformerpp.utils.output_guard import check_not_input, child
+from mvsformerpp.utils.output_tree import claim_output_tree
 
 
 def export_colmap(folder: str | Path, target: str | Path, overwrite: bool = False, quiet: bool = False) -> Path:
-    """Write the reconstruction in ``folder`` as a COLMAP dense workspace ``target``; returns ``target``."""
+    """Write the reconstruction in ``folder`` as a COLMAP dense workspace ``target``; returns ``target``.
+
+    ``target`` is new or empty, or with ``overwrite`` a workspace this command wrote; never the reconstruction,
+    its input, or a folder holding either (:func:`~mvsformerpp.utils.output_tree.claim_output_tree`: the new
+    workspace is complete before the old one goes).
+    """
     folder, target = Path(folder), Path(target)
-    if target.exists() and (not target.is_dir() or any(target.iterdir())) and not overwrite:
-        raise InputError("the export target exists and is not empty; choose another folder or pass --overwrite",
-                         target)
-    if target.resolve() == folder.resolve() or folder.resolve() in target.resolve().parents:
-        raise InputError("export into a folder outside the reconstruction (OUT), not inside it", target)
-    if target.resolve() in folder.resolve().parents:
-        raise InputError(f"the export target holds the reconstruction {folder}, which --overwrite would delete; "
-                         "export into a folder outside it", target)
+    recorded_input = (read_run_record(folder) or {}).get("input")
+    inputs = [folder, *([recorded_input] if isinstance(recorded_input, str) else [])]
+    check_not_input(target, inputs, "DIR")  # (before minutes of loading)
     scene, depths, _, photos = load_depth_folder(require_depth_maps(folder))
-    holds = [v.image_path for v in scene.views if target.resolve() in Path(v.image_path).resolve().parents]
-    if holds and target.exists():
-        raise InputError(f"the export target holds the input photos ({holds[0]}), which --overwrite would delete; "
-                         "export into a folder outside it", target)
-    if target.exists() and overwrite and not _is_workspace(target):
-        raise InputError("--overwrite replaces only an empty folder or a COLMAP workspace (images/, sparse/, "
-                         "stereo/) and this is neither; choose another folder", target)
-    target.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{target.name}.", dir=target.parent))
-    try:
+    inputs += sorted({str(Path(v.image_path).resolve().parent) for v in scene.views})  # the photos (links followed)
+    with claim_output_tree(target, "export", inputs, overwrite, recognise=_earlier_workspace,
+                           flag="DIR") as tmp:
         names = _write_workspace(tmp, scene, depths, photos)
-        if target.exists():
-            shutil.rmtree(target) if target.is_dir() else target.unlink()
-        os.replace(tmp, target)
-    except BaseException as e:
-        shutil.rmtree(tmp, ignore_errors=True)
-        if isinstance(e, OSError) and e.filename and str(tmp) in str(e.filename):
-            e.filename = str(target)  # not the temporary folder, which is gone
-        raise
     if not quiet:
         print(f"COLMAP workspace with {len(names)} images -> {target}\n"
               f"  fuse with COLMAP : colmap stereo_fusion --workspace_path {target} --output_path fused.ply\n"
@@ -92,7 +79,7 @@ def _write_workspace(root: Path, scene, depths, photos) -> list[str]:
     for i, (view, depth) in enumerate(zip(scene.views, depths)):
         name = f"{view.name}{view.image_path.suffix.lower()}"
         names.append(name)
-        _link_or_copy(view.image_path, root / "images" / name)
+        _link_or_copy(view.image_path, child(root / "images", name, "view name"))
         K = view.K
         cameras[i + 1] = ColmapCamera(i + 1, "PINHOLE", view.width, view.height,
                                       np.array([K[0, 0], K[1, 1], K[0, 2], K[1, 2]]))
@@ -111,12 +98,15 @@ def _write_workspace(root: Path, scene, depths, photos) -> list[str]:
     return names
 
 
-def _is_workspace(path: Path) -> bool:
-    """An empty folder, or one laid out as the COLMAP workspace this command writes."""
-    if not path.is_dir():
-        return False
+def _earlier_workspace(path: Path) -> bool:
+    """A workspace an earlier version of this command wrote (before the marker): exactly its layout, with the
+    camera mesh that only this command writes."""
     names = {p.name for p in path.iterdir()}
-    return not names or {"images", "sparse", "stereo"} <= names
+    frustums = path / "cameras.ply"
+    if names != {"images", "sparse", "stereo", "cameras.ply"} or not frustums.is_file():
+        return False
+    with open(frustums, "rb") as f:
+        return (PLY_MARKER + "\n").encode() in f.read(4096)
 
 
 def sparse_points(scene, depths, photos, images: dict, per_view: int = 2000, tolerance: float = 0.01,
@@ -166,6 +156,7 @@ def sparse_points(scene, depths, photos, images: dict, per_view: int = 2000, tol
 
 
 def _link_or_copy(src: Path, dst: Path) -> None:
+    dst.parent.mkdir(parents=True, exist_ok=True)
     try:
         os.link(src, dst)
     except OSError:
@@ -188,5 +179,6 @@ def write_frustums(scene, path: Path, size: float | None = None) -> Path:
         verts.append(frustum_points(v.K, v.R, v.t, v.width, v.height, size))
         faces.append(FRUSTUM_FACES + 5 * i)
     colors = np.tile(np.array([[230, 60, 40]], np.uint8), (5 * len(scene.views), 1))
-    write_ply(path, np.concatenate(verts).astype(np.float32), colors, faces=np.concatenate(faces))
+    write_ply(path, np.concatenate(verts).astype(np.float32), colors, faces=np.concatenate(faces),
+              kind=CAMERA_FRUSTUMS)
     return path

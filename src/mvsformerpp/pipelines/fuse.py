@@ -25,7 +25,7 @@ from mvsformerpp.fusion import FusionConfig, iter_fused_points
 from mvsformerpp.fusion.choice import Calibration, choose_fusion
 from mvsformerpp.fusion.normals import ReferenceAttributes
 from mvsformerpp.fusion.store import CHUNK_BYTES_PER_PIXEL, scene_view_store, working_set_bytes
-from mvsformerpp.inference.resolution import available_memory_bytes
+from mvsformerpp.inference.resolution import available_memory_bytes, human_size
 from mvsformerpp.io.depth_folder import DepthFolder, fusion_read_size
 from mvsformerpp.io.output_folder import (
     CLOUD,
@@ -42,7 +42,8 @@ from mvsformerpp.pipelines.empty_cloud import explain_empty_cloud
 from mvsformerpp.pipelines.reconstruct_config import fusion_overrides
 from mvsformerpp.pipelines.run import Run
 from mvsformerpp.pipelines.run_plan import RunPlan
-from mvsformerpp.utils.output_guard import claim_output_file, writing
+from mvsformerpp.utils.file_kinds import POINT_CLOUD
+from mvsformerpp.utils.output_guard import claim_output_file
 
 log = logging.getLogger(__name__)
 
@@ -70,7 +71,8 @@ def view_cache_bytes(pixels_per_view: int, num_sources: int, config: FusionConfi
     if memory_bytes < need:
         raise InputError(
             f"--memory-gb {memory_bytes / 2**30:.3g} is too small for fusion: one reference view and its "
-            f"{num_sources} source views need {need / 2**30:.3f} GB; raise --memory-gb or lower --num-src-views")
+            f"{num_sources} source views need about {human_size(need)}; raise --memory-gb to at least "
+            f"{need / 2**30:.2g} or lower --num-src-views")
     return int(memory_bytes - working_memory_bytes(pixels_per_view, num_sources, config))
 
 
@@ -95,9 +97,9 @@ def fuse(folder: str | Path, out_ply: str | Path | None = None, config: FusionCo
     0: at their stored size;
     ``"recorded"``: at the working resolution a ``reconstruct`` run of ``folder`` recorded (else stored).
 
-    ``out_ply`` is replaced only when it is new or a PLY file, and not while another run writes its folder
-    (:func:`~mvsformerpp.utils.output_guard.claim_output_file`); a full disk or a read-only place is one
-    clear error, and an unfinished cloud never replaces the old one.
+    ``out_ply`` is replaced only when it is new or a point cloud this package wrote, and not while another
+    run writes it or its folder (:func:`~mvsformerpp.utils.output_guard.claim_output_file`); a full disk or a
+    read-only place is one clear error, and an unfinished cloud never replaces the old one.
     """
     return fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
                           max_size)["ply"]
@@ -125,7 +127,7 @@ def fuse_streaming(folder: str | Path, out_ply: str | Path | None = None, config
     if memory_gb is not None and not (math.isfinite(memory_gb) and memory_gb > 0):
         raise InputError(f"--memory-gb must be a positive number of GB, got {memory_gb}")
     max_size = fusion_read_size(recorded_fusion_size(folder) if max_size == RECORDED else max_size)
-    with claim_output_file(out_ply, b"ply", "PLY"), writing(out_ply):
+    with claim_output_file(out_ply, POINT_CLOUD, [mask_dir] if mask_dir is not None else [], run=folder):
         return _fuse_streaming(folder, out_ply, config, device, quiet, memory_gb, mask_dir, normals, explain_empty,
                                max_size)
 

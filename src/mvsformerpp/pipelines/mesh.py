@@ -28,7 +28,8 @@ from mvsformerpp.io.ply import ply_colors, ply_points, read_ply, write_ply
 from mvsformerpp.meshing.extract import Mesh, marching_cubes
 from mvsformerpp.meshing.poisson import PoissonConfig, plan_poisson, screened_poisson
 from mvsformerpp.meshing.tsdf import BYTES_PER_VOXEL, TSDFConfig, integrate, plan_grid, scene_box, surface_box
-from mvsformerpp.utils.output_guard import claim_output_file, writing
+from mvsformerpp.utils.file_kinds import MESH
+from mvsformerpp.utils.output_guard import claim_output_file
 
 
 @dataclass(frozen=True)
@@ -47,18 +48,16 @@ class MeshConfig:
 
 def make_mesh(folder: str | Path, out_ply: str | Path, config: MeshConfig = MeshConfig(), quiet: bool = False) -> Mesh:
     """Mesh the reconstruction in ``folder`` and write it to ``out_ply`` (binary PLY with vertex colours)."""
-
     folder = Path(folder)
     if not folder.is_dir():
         raise InputError("no such output folder (make one with `mvsformerpp reconstruct INPUT -o OUT`)", folder)
-    with claim_output_file(out_ply, b"ply", "PLY mesh"):
+    with claim_output_file(out_ply, MESH, [folder / CLOUD], run=folder):
         t0 = time.perf_counter()
         mesh = _tsdf_mesh(folder, config, quiet) if config.method == "tsdf" else _poisson_mesh(folder, config, quiet)
         if len(mesh.faces) == 0:
             raise InputError("the mesh came out empty: the depth maps agree nowhere; check them in report.html",
                              folder)
-        with writing(out_ply):
-            write_ply(out_ply, mesh.vertices, mesh.colors, faces=mesh.faces)
+        write_ply(out_ply, mesh.vertices, mesh.colors, faces=mesh.faces, kind=MESH)
     if not quiet:
         print(f"{len(mesh.vertices):,} vertices, {len(mesh.faces):,} triangles ({config.method}) in "
               f"{time.perf_counter() - t0:.1f} s -> {out_ply}")

@@ -28,6 +28,7 @@ import torch
 
 from mvsformerpp.errors import InputError
 from mvsformerpp.io.output_folder import OutputFolder
+from mvsformerpp.models.checkpoint import require_checkpoint_file
 from mvsformerpp.models.weights import GIVEN, Weights
 from mvsformerpp.pipelines.depth_maps import compute_depth_maps
 from mvsformerpp.pipelines.fuse import fuse_maps
@@ -70,12 +71,14 @@ def reconstruct(input_path: str | Path, out_dir: str | Path, config: Reconstruct
     if not Path(input_path).exists():
         raise InputError("no such file or folder", input_path)
     weights = GIVEN if model is not None else run_weights(config)
-    if weights.source == "file" and not Path(weights.checkpoint).is_file():
-        raise InputError("checkpoint file not found", weights.checkpoint)
+    if weights.source == "file":
+        require_checkpoint_file(weights.checkpoint)
     _device(config.device)
     ranks = ranks_from_env(config.device)
     try:
-        with claim_output_folder(out_dir, [input_path], "reconstruct"):
+        given = Path(input_path)
+        reads = [given if given.is_dir() else given.parent, *([config.mask_dir] if config.mask_dir else [])]
+        with claim_output_folder(out_dir, reads, "reconstruct"):
             return _run(input_path, out_dir, config, quiet or not ranks.is_main, model, weights, ranks)
     finally:
         ranks.close()

@@ -15,6 +15,7 @@ from typing import Literal
 from mvsformerpp.errors import InputError
 from mvsformerpp.fusion.choice import Calibration, FusionChoice, check_overrides, choose_fusion
 from mvsformerpp.fusion.config import PRESETS as FUSION_PRESETS
+from mvsformerpp.io.scene import check_depth_range
 from mvsformerpp.models.config import INFERENCE_SETTINGS, ModelConfig
 from mvsformerpp.models.presets import PRESETS, RECONSTRUCT_PRESETS, get_config
 from mvsformerpp.pipelines.sfm import SfMConfig
@@ -122,10 +123,11 @@ class ReconstructConfig:
             raise InputError(f"{config_flag('memory_gb')} must be a positive number of GB, got {self.memory_gb}")
         if self.cache_mb < 0:
             raise InputError(f"{config_flag('cache_mb')} must be >= 0, got {self.cache_mb}")
-        if self.depth_range is not None and not (0 < self.depth_range[0] < self.depth_range[1]
-                                                 and math.isfinite(self.depth_range[1])):
-            raise InputError(f"{config_flag('depth_range')} {self.depth_range[0]:g} {self.depth_range[1]:g} must "
-                             "satisfy 0 < min < max")
+        if self.depth_range is not None:
+            if not (0 < self.depth_range[0] < self.depth_range[1] and math.isfinite(self.depth_range[1])):
+                raise InputError(f"{config_flag('depth_range')} {self.depth_range[0]:g} {self.depth_range[1]:g} must "
+                                 "satisfy 0 < min < max")
+            check_depth_range(*self.depth_range, config_flag("depth_range"))
         if self.depth_format not in ("auto", "interval", "max"):
             raise InputError(f"{config_flag('depth_format')} must be auto, interval or max, got {self.depth_format!r}")
         if not (math.isfinite(self.interval_scale) and self.interval_scale > 0):

@@ -19,7 +19,13 @@ import torch
 
 from mvsformerpp.fusion.choice import FusionChoice
 from mvsformerpp.inference.fingerprint import view_fingerprints
-from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
+from mvsformerpp.inference.resolution import (
+    ViewResize,
+    available_memory_bytes,
+    choose_long_side,
+    human_size,
+    plan_views,
+)
 from mvsformerpp.inference.runner import view_cameras
 from mvsformerpp.inference.search_range import search_range, stage1_shift
 from mvsformerpp.io.mvsnet import write_mvsnet_scene
@@ -183,12 +189,8 @@ def plan_line(plan: RunPlan) -> str:
             else f"{len(todo)} to compute, {len(scene) - len(todo)} done before")
     disk = pixels * BYTES_PER_OUTPUT_PIXEL
     return (f"plan: {len(scene)} views at {size} (working resolution), {config.num_views} views per depth map; "
-            f"{left}; the depth maps take about {_size(disk)} on disk"
+            f"{left}; the depth maps take about {human_size(disk)} on disk"
             + ("" if config.fusion == "none" else ", plus the fused cloud"))
-
-
-def _size(nbytes: float) -> str:
-    return f"{nbytes / 2**30:.1f} GB" if nbytes >= 2**30 else f"{max(1, round(nbytes / 2**20))} MB"
 
 
 def stage1_parallax(scene: Scene, config: ReconstructConfig, device: torch.device) -> dict | None:

@@ -13,12 +13,13 @@ from pathlib import Path
 import yaml
 
 from mvsformerpp.errors import InputError
+from mvsformerpp.models.checkpoint import require_checkpoint_file
 from mvsformerpp.training.config import TrainConfig, config_differences, dump_config
 from mvsformerpp.training.parallax import check_parallax
 from mvsformerpp.training.trainer import train
 from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.distributed import env_rank
-from mvsformerpp.utils.output_guard import claim_output_folder
+from mvsformerpp.utils.output_guard import check_output_folder, claim_output_folder
 
 
 def prepare_run_dir(config: TrainConfig, run_dir: Path, resume: bool) -> None:
@@ -49,14 +50,16 @@ def run_training(config: TrainConfig, run_dir: str | Path, resume: bool = False,
     The folder is claimed as every output folder is (:func:`mvsformerpp.utils.output_guard.
     claim_output_folder`): new, empty or a run folder of ``train``, holding none of ``inputs`` (the
     config file, for one) when a run starts, and locked for one run at a time."""
-
-    if datasets is None and not resume:
-        check_parallax(config)  # before the run folder is touched
+    if config.init_checkpoint:
+        require_checkpoint_file(config.init_checkpoint)
     out = Path(run_dir).resolve()
     for given in (*inputs, config.init_checkpoint, config.train_list, config.val_list):
         if given and (Path(given).resolve() == out or out in Path(given).resolve().parents) and not resume:
             raise InputError(f"the run folder holds the input {given}, which training would mix with or overwrite; "
                              "train into a new folder (-o) outside it", run_dir)
+    check_output_folder(run_dir, kind="train")  # (the folder's checks first: the next one renders samples)
+    if datasets is None and not resume:
+        check_parallax(config)  # before the run folder is touched
     with claim_output_folder(run_dir, kind="train") as run_dir:
         prepare_run_dir(config, run_dir, resume)
         return train(config, run_dir, resume=resume, datasets=datasets)

@@ -10,6 +10,8 @@ from mvsformerpp.synth.render import TEXTURES, Camera, Surface, SynthScene, look
 from mvsformerpp.synth.shapes import Box, Cylinder, Plane, Sphere
 
 STYLES = ("classic", "train", "heldout")
+MAX_SEED = 2**31 - 1
+"""Largest scene seed: the classic style seeds NumPy's 32-bit generators with the seed plus up to a few hundred."""
 
 
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,

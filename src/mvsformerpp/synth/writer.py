@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import inspect
 import json
+import os
+import shutil
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -14,7 +18,12 @@ from mvsformerpp.io.pfm import write_pfm
 from mvsformerpp.io.ply import write_ply
 from mvsformerpp.synth.render import centred_window, render_view, sensor_depth_range, sensor_points
 from mvsformerpp.synth.scenes import random_scene
-from mvsformerpp.utils.atomic import atomic_open, atomic_write_text
+from mvsformerpp.utils.atomic import atomic_open, atomic_write_text, current_umask
+from mvsformerpp.utils.file_kinds import GT_SURFACE
+from mvsformerpp.utils.output_guard import claim_output_folder
+
+SCENE_RECORD = "scene.json"
+"""Written last: a scene folder without it is unfinished."""
 
 
 def save_png(path: Path, array: np.ndarray) -> None:
@@ -48,8 +57,25 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
     view's, as a real crop's would. ``detail``: strength of the fine surface detail (see
     :func:`random_scene`). ``layout``, ``plain_walls``: the ``train`` style's layout and share of painted
     walls (:func:`random_scene`).
+
+    The folder is claimed by the output guard (:func:`~mvsformerpp.utils.output_guard.claim_output_folder`):
+    new or empty, or the output of an earlier call with the same settings, which this completes (the scene
+    is whole once ``scene.json``, written last, is there; every file is written atomically).
     """
-    out = Path(out_dir)
+
+    settings = dict(seed=seed, num_views=num_views, height=height, width=width, num_objects=num_objects,
+                    gt_points=gt_points, style=style, sensor_width=sensor_width, detail=detail, layout=layout,
+                    plain_walls=plain_walls)
+    with claim_output_folder(out_dir, kind="synth", settings={"scenes": 1, **settings}, flag="OUT") as out:
+        if not (out / SCENE_RECORD).is_file():
+            write_scene(out, **settings)
+    return Path(out_dir)
+
+
+def write_scene(out: Path, seed: int, num_views: int, height: int, width: int, num_objects: int | None,
+                gt_points: int, style: str, sensor_width: tuple[float, float] | None, detail: float,
+                layout: str | None, plain_walls: float) -> None:
+    """Render and write one scene into the folder ``out`` (see :func:`generate_scene`; ``scene.json`` last)."""
     scene = random_scene(seed, num_views, height, width, num_objects, style=style, sensor_width=sensor_width,
                          detail=detail, layout=layout, plain_walls=plain_walls)
     photo_points = [sensor_points(scene, cam) for cam in scene.cameras]
@@ -82,22 +108,44 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
         keep = np.random.default_rng(seed).choice(len(pts), gt_points, replace=False)
         keep.sort()
         pts, rgb = pts[keep], rgb[keep]
-    write_ply(out / "gt_surface.ply", pts.astype(np.float32), rgb)
-    atomic_write_text(out / "scene.json", json.dumps(
+    write_ply(out / "gt_surface.ply", pts.astype(np.float32), rgb, kind=GT_SURFACE)
+    atomic_write_text(out / SCENE_RECORD, json.dumps(
         {"seed": seed, "style": style, "num_views": num_views, "height": height, "width": width,
          "sensor_width": None if sensor_width is None else [float(v) for v in sensor_width],
          "detail": float(detail), "layout": scene.meta.get("layout"), "plain_walls": float(plain_walls),
          "surfaces": [type(s.shape).__name__ + ":" + s.texture for s in scene.surfaces]}, indent=2))
-    return out
+
+
+_SCENE_DEFAULTS = {k: v.default for k, v in inspect.signature(generate_scene).parameters.items()
+                   if k not in ("out_dir", "seed")}
+"""The settings of a scene besides its seed, with :func:`generate_scene`'s defaults."""
 
 
 def generate_dataset(out_dir: str | Path, num_scenes: int, seed: int = 0, **kwargs) -> Path:
-    """Many scenes, ``scene_0000/`` ... in the MVSNet layout, plus ``scenes.txt`` listing them."""
-    out = Path(out_dir)
-    names = []
-    for k in range(num_scenes):
-        name = f"scene_{k:04d}"
-        generate_scene(out / name, seed=seed + 1000 * k, **kwargs)
-        names.append(name)
-    atomic_write_text(out / "scenes.txt", "\n".join(names) + "\n")
-    return out
+    """Many scenes, ``scene_0000/`` ... in the MVSNet layout, plus ``scenes.txt`` listing them (scene k from seed
+    ``seed + 1000 k``; ``kwargs``: those of :func:`generate_scene`).
+
+    Resumable as :func:`generate_scene` is: a scene is rendered into a temporary folder and renamed into place
+    when whole, so a rerun with the same settings renders only the scenes still missing.
+    """
+
+    unknown = set(kwargs) - set(_SCENE_DEFAULTS)
+    if unknown:
+        raise TypeError(f"generate_dataset() got unexpected keyword arguments {sorted(unknown)}")
+    kwargs = {**_SCENE_DEFAULTS, **kwargs}  # (the record names every setting: a rerun compares like with like)
+    settings = {"scenes": num_scenes, "seed": seed, **kwargs}
+    with claim_output_folder(out_dir, kind="synth", settings=settings, flag="OUT") as out:
+        names = [f"scene_{k:04d}" for k in range(num_scenes)]
+        for k, name in enumerate(names):
+            if (out / name).is_dir():
+                continue
+            staging = Path(tempfile.mkdtemp(prefix=f".{name}.", suffix=".tmp", dir=out))
+            try:
+                write_scene(staging, seed=seed + 1000 * k, **kwargs)
+                os.chmod(staging, 0o777 & ~current_umask())
+                os.rename(staging, out / name)
+            except BaseException:
+                shutil.rmtree(staging, ignore_errors=True)
+                raise
+        atomic_write_text(out / "scenes.txt", "\n".join(names) + "\n")
+    return Path(out_dir)

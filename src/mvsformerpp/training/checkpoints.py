@@ -23,6 +23,7 @@ import torch
 from mvsformerpp.errors import InputError, MVSFormerError
 from mvsformerpp.models.checkpoint import load_state_dict_strict, read_safetensors, save_checkpoint
 from mvsformerpp.utils.atomic import atomic_write_bytes
+from mvsformerpp.utils.interrupts import deferred_interrupt
 
 
 class CheckpointWriteError(MVSFormerError):
@@ -77,9 +78,14 @@ def save_training_checkpoint(folder: Path, name: str, model: torch.nn.Module, st
     With a state, the new pair is first written completely as ``NAME.next.*``; then the current pair
     becomes ``NAME.prev.*`` and the new one ``NAME.*``, by renames. At every instant a kill leaves a
     weights file and a state file of one step among them, which :func:`load_training_checkpoint`
-    finds; a full disk stops before any rename, with the current pair untouched.
+    finds; a full disk stops before any rename, with the current pair untouched. Ctrl-C during the save
+    waits for its end, then stops the run (:func:`~mvsformerpp.utils.interrupts.deferred_interrupt`).
     """
-    folder = Path(folder)
+    with deferred_interrupt():
+        return _save_training_checkpoint(Path(folder), name, model, state)
+
+
+def _save_training_checkpoint(folder: Path, name: str, model: torch.nn.Module, state: dict | None) -> Path:
     weights = folder / f"{name}.safetensors"
     if state is None:
         with _write_guard(weights):

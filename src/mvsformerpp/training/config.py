@@ -275,9 +275,12 @@ def load_config(recipe_or_file: str, overrides: dict | None = None) -> TrainConf
         if not path.is_file():
             raise InputError(f"neither a recipe ({', '.join(RECIPES)}) nor a YAML file", path)
         try:
-            data = yaml.safe_load(path.read_text()) or {}
+            data = yaml.safe_load(path.read_text(encoding="utf-8-sig")) or {}
+        except UnicodeDecodeError as e:
+            raise InputError(f"not a YAML text file (byte {e.start} is not UTF-8 text); give a recipe name "
+                             f"({', '.join(RECIPES)}) or a YAML file of config fields", path) from e
         except yaml.YAMLError as e:
-            raise InputError(f"not valid YAML ({e})", path) from e
+            raise InputError(f"not valid YAML ({' '.join(str(e).split())})", path) from e
         if not isinstance(data, dict):
             raise InputError("a training config must be a mapping of field: value", path)
         base = RECIPES.get(data.get("recipe", "synthetic"))
@@ -287,6 +290,11 @@ def load_config(recipe_or_file: str, overrides: dict | None = None) -> TrainConf
     return check_config(TrainConfig.from_dict(overrides or {}, config))
 
 
+MAX_TRAIN_SIZE = 4096
+"""Largest training height or width in pixels."""
+MAX_SEED = 2**31 - 1 - 2 * 10_000_000
+"""Largest seed: synthetic scene seeds reach seed + 1,000,000 (validation) + the number of scenes
+(:data:`MAX_SYNTHETIC_SCENES`), within the renderer's :data:`mvsformerpp.synth.scenes.MAX_SEED`."""
 MAX_SYNTHETIC_SCENES = 10_000_000
 """Largest synthetic_train_scenes: an epoch's order is a permutation of all their samples."""
 MAX_SCENE_VIEWS = 1000
@@ -326,13 +334,24 @@ def _check_shape(config: TrainConfig) -> None:
         if h < 32 or w < 32 or h % 32 or w % 32:
             raise InputError(f"training size {h}x{w} ({name}) must be multiples of 32, e.g. "
                              f"{max(32, -(-h // 32) * 32)}x{max(32, -(-w // 32) * 32)}")
+        if max(h, w) > MAX_TRAIN_SIZE:
+            raise InputError(f"training size {h}x{w} ({name}) must be at most {MAX_TRAIN_SIZE} pixels per side (a "
+                             "sample's activations grow with its pixels: the reference trains at 512x640 to "
+                             "1024x1280); use --height/--width or --set resolutions=...")
     if config.num_depth < 2:
         raise InputError(f"num_depth must be at least 2 (the depth planes of a sample's range), got {config.num_depth} "
                          "(--set num_depth=...)")
     if config.num_views < 2:
         raise InputError(f"num_views must be at least 2 (the reference view and a source), got {config.num_views}")
-    if config.batch_size < 1 or (config.max_steps is not None and config.max_steps < 0) or config.epochs < 0:
-        raise InputError("batch_size must be >= 1 and max_steps/epochs >= 0")
+    if config.batch_size < 1:
+        raise InputError(f"batch_size must be at least 1, got {config.batch_size} (--batch-size)")
+    which, value = ("max_steps", config.max_steps) if config.max_steps is not None else ("epochs", config.epochs)
+    if value < 1:
+        raise InputError(f"{which} must be at least 1 (a run of no step trains nothing and saves no checkpoint), got "
+                         f"{value} (--{which.replace('_', '-')})")
+    if not 0 <= config.seed <= MAX_SEED:
+        raise InputError(f"seed must be 0 .. {MAX_SEED} (synthetic scenes are drawn from seed + their index, and "
+                         f"the renderer's generators take 32-bit seeds), got {config.seed} (--seed)")
     if config.save_every < 1 or config.log_every < 1:
         raise InputError("save_every and log_every must be >= 1")
 
@@ -378,7 +397,7 @@ def _check_options(config: TrainConfig) -> None:
     if config.num_workers > MAX_WORKERS:
         raise InputError(f"num_workers must be at most {MAX_WORKERS} (each is a process rendering samples), got "
                          f"{config.num_workers:,} (--set num_workers=...)")
-    for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "seed", "micro_batch"):
+    for name in ("warmup_steps", "max_bad_steps", "num_workers", "val_samples", "val_every", "micro_batch"):
         if getattr(config, name) < 0:
             raise InputError(f"{name} must be >= 0, got {getattr(config, name)} (--set {name}=...)")
     if not all(0 <= b < 1 for b in config.betas):

@@ -25,7 +25,8 @@ from mvsformerpp.geometry.resize import fit_long_side
 from mvsformerpp.io.output_folder import DEPTH_VIS, REPORT, RunFolder, ViewFiles, depth_range_of, open_run
 from mvsformerpp.utils.atomic import atomic_write_text
 from mvsformerpp.utils.colormap import colorize, depth_colors, depth_scale, kept_pixels, turbo
-from mvsformerpp.utils.output_guard import check_replaceable
+from mvsformerpp.utils.file_kinds import HTML_REPORT
+from mvsformerpp.utils.output_guard import claim_output_file
 
 THUMB_SIDE = 280
 """Longer side of the per-view thumbnails, in pixels."""
@@ -399,6 +400,6 @@ def write_report(folder: str | Path, out: str | Path | None = None) -> Path:
     """Write the report of an output folder (default ``folder/report.html``); returns its path."""
     run = open_run(folder)
     out = Path(out) if out is not None else run.root / REPORT
-    check_replaceable(out, (b"<!DOCTYPE html",), "HTML report")
-    atomic_write_text(out, render_report(run, out.resolve().parent))
+    with claim_output_file(out, HTML_REPORT, run=run.root):
+        atomic_write_text(out, render_report(run, out.resolve().parent))
     return out
