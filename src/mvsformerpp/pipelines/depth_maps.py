@@ -52,7 +52,11 @@ def write_layout(folder: OutputFolder, plan: RunPlan) -> list[int]:
     folder.write_json(VIEWS, {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
     folder.write_json(CONFIG, {"config": dataclasses.asdict(config),
                                       "resolved": {**plan.resolved, "fusion_conf": plan.fusion_conf,
-                                                   "weights": plan.weights, "precision": plan.precision},
+                                                   "weights": plan.weights, "precision": plan.precision,
+                                                   "backend": plan.backend,
+                                                   "onnx_model": None if plan.onnx_model is None else
+                                                   {"folder": str(plan.onnx_model.folder),
+                                                    "id": plan.onnx_model.model_id}},
                                       "scene_fingerprint": plan.fingerprint, "input": str(plan.input_path.resolve()),
                                       "source_format": plan.source_format, "num_views_in_input": plan.input_views})
     todo = [i for i in range(len(scene)) if not folder.view_done(i, plan.keys[i])]
@@ -108,4 +112,8 @@ def compute_depth_maps(folder: OutputFolder, plan: RunPlan, todo: list[int], mod
 def _started(plan: RunPlan, model: torch.nn.Module | None, todo: list[int]) -> tuple[SceneInference, dict]:
     from mvsformerpp.pipelines.network import build_network
 
+    if model is None and plan.onnx_model is not None:
+        from mvsformerpp.inference.onnx_runtime import OnnxNetwork
+
+        model = OnnxNetwork(plan.onnx_model, plan.device)
     return start_inference(plan, model if model is not None else build_network(plan.config), todo)

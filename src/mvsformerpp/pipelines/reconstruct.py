@@ -25,6 +25,7 @@ import torch
 from mvsformerpp.errors import InputError
 from mvsformerpp.io.output_folder import DEPTH_VIS, SUMMARY, OutputFolder, disk_full_guard, scene_fingerprint
 from mvsformerpp.io.scene import Scene
+from mvsformerpp.pipelines.backend import describe_backend, resolve_backend, run_model
 from mvsformerpp.pipelines.depth_maps import DepthMapsDone, compute_depth_maps, write_layout
 from mvsformerpp.pipelines.network import describe_weights
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig, config_flag
@@ -87,7 +88,14 @@ def _run(input_path, out_dir, config: ReconstructConfig, quiet: bool, model, ran
 
     # 2. the plan; rank 0's working resolution for all (free memory differs between machines, it may not)
     long_side = ranks.broadcast(working_long_side(scene, config, device))
-    plan = plan_run(input_path, full, scene, fingerprint, config, device, long_side, given_model=model is not None)
+    backend = resolve_backend(config, device, given_model=model is not None)
+    onnx_model = None
+    if backend == "onnxruntime":
+        if ranks.distributed:
+            raise InputError(f"{config_flag('backend')} onnxruntime runs in one process: run it without torchrun")
+        onnx_model = run_model(config, folder.root, quiet)
+    plan = plan_run(input_path, full, scene, fingerprint, config, device, long_side, given_model=model is not None,
+                    backend=backend, onnx_model=onnx_model)
 
     # 3.-4. the network and the depth maps
     todo = ranks.broadcast(ranks.step(partial(write_layout, folder, plan), only_main=True))
@@ -154,6 +162,7 @@ def finish(folder: OutputFolder, plan: RunPlan, done: DepthMapsDone, per_rank: l
         "preset": config.preset,
         "checkpoint": config.checkpoint,
         "weights": "a network given by the caller" if given_model else describe_weights(config),
+        "backend": describe_backend(plan.backend, plan.onnx_model),
         "timings": {k: round(v, 3) if isinstance(v, float) else v for k, v in timings.items()},
         "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
         "schedule": None if done.schedule is None else {k: v for k, v in done.schedule.items() if k != "order"},

@@ -17,6 +17,7 @@ import torch
 
 from mvsformerpp.inference.fingerprint import view_fingerprints, weights_identity
 from mvsformerpp.inference.resolution import ViewResize, available_memory_bytes, choose_long_side, plan_views
+from mvsformerpp.io.onnx_model import OnnxModel
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset, network_settings, weights_id, weights_name
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
@@ -56,6 +57,10 @@ class RunPlan:
     attention_bf16: bool = False
     """Stage 1's transformer attention in bf16 inside the fp32 network (``--precision auto``, the preset's
     own network only: a network passed by the caller runs as the precision names)."""
+    backend: str = "torch"
+    """What runs the network: ``torch`` or ``onnxruntime`` (``--backend auto`` resolved)."""
+    onnx_model: OnnxModel | None = None
+    """The model folder the onnxruntime backend runs (None with PyTorch)."""
 
     @property
     def precision(self) -> str:
@@ -92,25 +97,31 @@ def cap_views(config: ReconstructConfig, num_images: int, say: bool) -> Reconstr
 
 
 def plan_run(input_path: str | Path, full: Scene, scene: Scene, fingerprint: str, config: ReconstructConfig,
-             device: torch.device, long_side: int, given_model: bool) -> RunPlan:
+             device: torch.device, long_side: int, given_model: bool, backend: str = "torch",
+             onnx_model: OnnxModel | None = None) -> RunPlan:
     """The plan for ``scene`` (prepared from the input ``full``) at the working resolution ``long_side``
-    (:func:`working_long_side`); ``given_model``: the caller passed its own network (no weights file)."""
+    (:func:`working_long_side`); ``given_model``: the caller passed its own network (no weights file);
+    ``backend`` and ``onnx_model``: what runs the network (:mod:`.backend`). The onnxruntime backend and its
+    model's identity enter every view's key."""
     plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
     resolved = resolved_size(long_side, plans)
     weights = None
     if not given_model:  # a checkpoint file's identity, or the shipped weights' digest (new weights redo the views)
         weights = weights_identity(config.checkpoint) if config.checkpoint else weights_id(config)
-    attention_bf16 = not given_model and attention_in_bf16(device, config.precision, config.preset)
+    attention_bf16 = not given_model and backend == "torch" and attention_in_bf16(device, config.precision,
+                                                                                 config.preset)
     settings = {**config.result_settings(), **resolved, "precision": precision_name(config.precision, attention_bf16)}
     if not given_model:  # the preset's network as built for this run (a given network is the caller's)
         settings["network"] = network_settings(config)
+    if onnx_model is not None:  # (PyTorch's keys stay as they were before there was another backend)
+        settings["backend"] = {"name": backend, "model": onnx_model.model_id}
     keys = view_fingerprints(scene, config.num_views, settings, weights)
     return RunPlan(config=config, input_path=Path(input_path), scene=scene, source_format=full.source_format,
                    input_views=len(full), fingerprint=fingerprint, device=device, long_side=long_side, plans=plans,
                    keys=keys,
                    weights="a network passed to reconstruct()" if given_model else weights_name(config),
                    fusion_conf=config.fusion_conf if given_model else fusion_conf_for(config),
-                   attention_bf16=attention_bf16)
+                   attention_bf16=attention_bf16, backend=backend, onnx_model=onnx_model)
 
 
 def working_long_side(scene: Scene, config: ReconstructConfig, device: torch.device) -> int:

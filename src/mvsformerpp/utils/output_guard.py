@@ -56,7 +56,7 @@ def check_not_input(out: Path, inputs: Sequence[str | Path]) -> None:
                              "with the input files. Choose an -o folder outside the input", out)
 
 
-def _written_by(out: Path) -> str | None:
+def written_by(out: Path) -> str | None:
     """The command that wrote ``out`` according to its marker (older reconstruct outputs: by their files)."""
     try:
         return json.loads((out / MARKER).read_text()).get("written_by")
@@ -76,7 +76,7 @@ def check_owned(out: Path, kind: str, reuse: bool = True) -> None:
     if not out.is_dir():
         raise InputError("the output path exists and is not a folder; choose another -o", out)
     entries = [p.name for p in out.iterdir() if p.name not in (LOCK, MARKER)]
-    if not entries or (reuse and _written_by(out) == f"mvsformerpp {kind}"):
+    if not entries or (reuse and written_by(out) == f"mvsformerpp {kind}"):
         return
     shown = ", ".join(sorted(entries)[:4]) + (" ..." if len(entries) > 4 else "")
     whose = "" if reuse else " (it must be new or empty)"
@@ -166,7 +166,7 @@ def claim_output_folder(out: str | Path, inputs: Sequence[str | Path] = (), kind
     try:
         if rank == 0:
             held.enter_context(folder_lock(out))
-            if _written_by(out) != f"mvsformerpp {kind}":
+            if written_by(out) != f"mvsformerpp {kind}":
                 (out / MARKER).write_text(json.dumps({"written_by": f"mvsformerpp {kind}"}) + "\n")
         if world == 1:
             remove_temporaries(out)
@@ -224,7 +224,7 @@ def claim_output_file(path: str | Path, magic: bytes, what: str) -> Iterator[Pat
     check_replaceable(path, (magic,), what)
     folder = path.parent
     held_here = os.path.realpath(folder) in _HELD  # (a reconstruct run of this process fusing into its folder)
-    lock = folder_lock(folder) if _written_by(folder) is not None and not held_here else contextlib.nullcontext()
+    lock = folder_lock(folder) if written_by(folder) is not None and not held_here else contextlib.nullcontext()
     with lock:
         if folder.is_dir():
             for p in folder.glob(f".{glob_escape(path.name)}.*.tmp"):
