@@ -118,6 +118,10 @@ def model_record(export, network: ModelConfig, graphs: dict) -> dict:
         "images": {"channels": "RGB", "range": [0.0, 1.0], "mean": list(IMAGENET_MEAN), "std": list(IMAGENET_STD),
                    "size_multiple": 32, "min_size": 64},
         "cameras": CAMERAS,
+        "sizes": {"N": "images per encoder call (any number)",
+                  "H": "the images' height after padding: a multiple of 32, at least 64 (symbolic in the graphs)",
+                  "W": "the images' width after padding: a multiple of 32, at least 64 (symbolic in the graphs)",
+                  "views": f"views per view set, fixed at export: {export.num_views}"},
         "fusion_conf_threshold": conf if conf is not None else fusion_preset(run.fusion).conf_threshold,
         "graphs": graphs,
     }
