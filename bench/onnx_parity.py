@@ -45,15 +45,20 @@ def dtu_pair_scene(out: Path) -> Path:
 
 
 def reconstruct_maps(scene: Path, out: Path, views: int, **settings) -> tuple[list, float | None]:
-    """Depth and confidence maps of every view (and the fusion threshold of the run) from ``reconstruct``."""
+    """Depth and confidence maps of every view from ``reconstruct --fusion none``, and the confidence threshold
+    its default fusion (``normal``) would keep pixels above."""
+    import dataclasses
+
     from mvsformerpp.io.pfm import read_pfm
+    from mvsformerpp.pipelines.network import fusion_conf_for, fusion_preset
     from mvsformerpp.pipelines.reconstruct import ReconstructConfig, reconstruct
 
     config = ReconstructConfig(num_views=views, fusion="none", **settings)
     reconstruct(scene, out, config, quiet=True)
     maps = [(read_pfm(p), read_pfm(out / "confidence" / p.name)) for p in sorted((out / "depth_est").glob("*.pfm"))]
-    conf = json.loads((out / "config.json").read_text())["resolved"]["fusion_conf"]
-    return maps, conf
+    fused = dataclasses.replace(config, fusion="normal")
+    conf = fusion_conf_for(fused)
+    return maps, conf if conf is not None else fusion_preset("normal").conf_threshold
 
 
 def pooled(maps: list, ref: list, spans: list[float], conf: float) -> dict:

@@ -597,6 +597,10 @@ CASES: list[Case] = [
     Case("recon-onnx-other-temperatures", "reconstruct --onnx-model of a model with other temperatures baked in",
          lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model",
                          str(onnx_folder(d, num_views=3, temperatures=(1.0, 1.0, 1.0, 1.0)))), "temperatures"),
+    Case("recon-onnx-other-weights", "reconstruct --onnx-model of a model exported from a checkpoint, run without",
+         lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model", str(onnx_folder(d, num_views=3, checkpoint=str(
+             shutil.copy(ROOT / "src/mvsformerpp/assets/weights/mvsformerpp-lite-synthetic.safetensors",
+                         d / "mine.safetensors"))))), "--checkpoint it was exported from"),
     Case("recon-onnx-changed-graph", "reconstruct --onnx-model of a folder whose graph changed after the export",
          _changed_onnx_graph, "does not match model.json"),
     Case("recon-onnx-runtime-too-old", "reconstruct --onnx-model of graphs in an opset newer than onnxruntime's",

@@ -156,8 +156,10 @@ def mismatch(model: OnnxModel, config: ReconstructConfig) -> str | None:
                 f"--views {model.views} (or export with --views {config.num_views})")
     ours, theirs = weights_record(config), rec.get("weights", {})
     if any(ours.get(k) != theirs.get(k) for k in ("source", "sha256", "seed")):
-        return (f"it holds other weights ({theirs.get('description')}) than the run's ({ours['description']}): "
-                "pass the --checkpoint it was exported from")
+        same_name = ours.get("file") == theirs.get("file")
+        return (f"it holds {_weights_words(theirs)}, the run {_weights_words(ours)}"
+                + (" (another file of that name)" if same_name else "")
+                + ": pass the --checkpoint it was exported from (or export the run's weights)")
     temps = [float(t) for t in config.temperatures]
     if [float(t) for t in rec.get("temperatures", [])] != temps:
         return (f"its temperatures are {' '.join(f'{t:g}' for t in rec.get('temperatures', []))}, the run's "
@@ -167,6 +169,15 @@ def mismatch(model: OnnxModel, config: ReconstructConfig) -> str | None:
         return (f"its stage-1 settings {rec.get('network', {}).get('settings')} differ from the run's {settings} "
                 "(--cvt-shifts)")
     return None
+
+
+def _weights_words(weights: dict) -> str:
+    """A weights record in a few words."""
+    if weights.get("source") == "checkpoint":
+        return f"the weights of the checkpoint {weights.get('file')}"
+    if weights.get("source") == "shipped":
+        return "the shipped lite weights"
+    return f"a random initialisation (seed {weights.get('seed')})"
 
 
 def check_fits_run(model: OnnxModel, config: ReconstructConfig) -> None:
