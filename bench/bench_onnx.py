@@ -2,8 +2,8 @@
 
 What a user waits for: ``mvsformerpp reconstruct --fusion none`` end to end (network build, feature cache,
 depth and preview files) on a synthetic scene of 5 photos, every view the reference once, 5 views per
-depth map, in fresh processes alternated over ``--rounds`` (the table gives each backend's best round and
-the peak RSS of its process). PyTorch runs as the command does by default (``--precision auto``); the
+depth map, in fresh processes alternated over ``--rounds`` (the table gives each backend's best round, its CPU time
+per view and the peak RSS of its process). PyTorch runs as the command does by default (``--precision auto``); the
 onnxruntime backend runs a model exported once beforehand (the export is not timed). The cases:
 
 * ``lite``: the shipped weights, 480x640 photos (working resolution 640x480);
@@ -46,8 +46,9 @@ def run_reconstruct(scene: Path, out: Path, preset: str, backend: str, checkpoin
     if proc.returncode:
         raise SystemExit(f"{' '.join(cmd)} failed:\n{proc.stderr.read().decode()[-3000:]}")
     timings = json.loads((out / "summary.json").read_text())["timings"]
-    return {"s_per_view": timings["depth_s"] / timings["views_computed"], "peak_gb": usage.ru_maxrss / 1e6,
-            "wall_s": time.perf_counter() - t}
+    views = timings["views_computed"]
+    return {"s_per_view": timings["depth_s"] / views, "peak_gb": usage.ru_maxrss / 1e6,
+            "cpu_s_per_view": (usage.ru_utime + usage.ru_stime) / views, "wall_s": time.perf_counter() - t}
 
 
 def paper_checkpoint(path: Path) -> Path:
@@ -94,17 +95,23 @@ def main() -> None:
             row = {"preset": preset, "photos": size}
             for b in BACKENDS:
                 row[f"{b}_s_per_view"] = min(x["s_per_view"] for x in runs[b])
+                row[f"{b}_cpu_s_per_view"] = min(x["cpu_s_per_view"] for x in runs[b])
                 row[f"{b}_peak_gb"] = min(x["peak_gb"] for x in runs[b])
+            row["load_average"] = os.getloadavg()[0]
             row["torch_over_onnxruntime"] = row["torch_s_per_view"] / row["onnxruntime_s_per_view"]
             rows.append(row)
             print(json.dumps(row), flush=True)
     print(f"\nreconstruct, 5 photos, 5 views per depth map, best of {a.rounds} round(s), {os.cpu_count()} CPUs; "
           "PyTorch at --precision auto, onnxruntime on the CPU provider (fp32)")
     print(f"{'preset':>7} {'photos':>10} {'torch s/view':>13} {'ort s/view':>11} {'torch/ort':>10} "
-          f"{'torch GB':>9} {'ort GB':>7}")
+          f"{'torch cpu s':>12} {'ort cpu s':>10} {'torch GB':>9} {'ort GB':>7} {'load':>5}")
     for r in rows:
         print(f"{r['preset']:>7} {r['photos']:>10} {r['torch_s_per_view']:13.2f} {r['onnxruntime_s_per_view']:11.2f} "
-              f"{r['torch_over_onnxruntime']:9.2f}x {r['torch_peak_gb']:9.2f} {r['onnxruntime_peak_gb']:7.2f}")
+              f"{r['torch_over_onnxruntime']:9.2f}x {r['torch_cpu_s_per_view']:12.2f} "
+              f"{r['onnxruntime_cpu_s_per_view']:10.2f} {r['torch_peak_gb']:9.2f} {r['onnxruntime_peak_gb']:7.2f} "
+              f"{r['load_average']:5.1f}")
+    print("s/view: depth time over views (wall); cpu s: the whole process's CPU time over views (model build and "
+          "files included); load: the 1-minute load average at the end of the case (a shared machine)")
     if a.json:
         atomic_write_text(a.json, json.dumps(rows, indent=2) + "\n")
 

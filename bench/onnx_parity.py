@@ -87,7 +87,7 @@ def official_case(work: Path) -> dict:
     """The paper network with the fixture's weights, exported with stage outputs, on the fixture's view set."""
     sys.path.insert(0, str(ROOT / "tests" / "models"))
     import torch
-    from parity_utils import fixture_inputs, load_fixture, rel_err, rule_state_dict
+    from parity_utils import fixture_inputs, load_fixture, portable_errors, rule_state_dict
 
     from mvsformerpp.inference.onnx_runtime import camera_inputs, open_session
     from mvsformerpp.models import build_model, save_checkpoint
@@ -108,13 +108,7 @@ def official_case(work: Path) -> dict:
     feed = {**dict(zip(ENCODER_OUTPUTS, feats)), **camera_inputs(proj["stage4"][0], depth_values[0])}
     names = [*VIEW_SET_OUTPUTS, *stage_output_names()]
     outs = open_session(model.graph_path("view_set")).run(names, feed)
-    keys = {"depth": "eval/refined_depth", "confidence": "eval/photometric_confidence"}
-    fields = {"depth": "depth", "confidence": "photometric_confidence", "logits": "prob_volume_pre",
-              "hypotheses": "depth_values"}
-    errors = {}
-    for name, out in zip(names, outs):
-        stage, _, field = name.partition("_")
-        errors[name] = rel_err(out, fx[keys.get(name) or f"eval/{stage}/{fields[field]}"][0])
+    errors = portable_errors(names, outs, fx)
     return {"case": "official", "relative_error": errors, "max_relative_error": max(errors.values()),
             "export_parity": model.record["parity"]}
 

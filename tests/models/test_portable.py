@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 import torch.nn.functional as F
-from parity_utils import fixture_inputs, load_fixture, rel_err, rule_state_dict
+from parity_utils import fixture_inputs, load_fixture, portable_errors, rule_state_dict
 
 from mvsformerpp.geometry.warping import projection_4x4, relative_projections
 from mvsformerpp.models import build_model
@@ -85,8 +85,9 @@ def test_portable_graphs_are_the_inference_forms():
     model.prepare_for_inference()
     with torch.no_grad():
         ref = model(imgs, proj, dv, model.config.temperatures)
-    assert rel_err(out[0].numpy(), ref["depth"][0].numpy()) < 2e-4  # measured about 1e-5
-    assert (out[1] - ref["photometric_confidence"][0]).abs().max() < 2e-3  # measured about 1e-4
+    diff = (out[0] - ref["depth"][0]).abs() / (dv.max() - dv.min())  # measured: at most 2e-5 of the range
+    assert diff.mean() < 1e-5 and diff.quantile(0.99) < 1e-4
+    assert (out[1] - ref["photometric_confidence"][0]).abs().mean() < 1e-4  # measured: at most 1e-4
 
 
 def test_portable_graphs_reproduce_the_official_model():
@@ -101,14 +102,7 @@ def test_portable_graphs_reproduce_the_official_model():
     with torch.no_grad(), portable_attention(model):
         out = ViewSetGraph(model, imgs.shape[1], temps, stage_outputs=True)(*_graph_inputs(model, imgs, proj,
                                                                                             depth_range))
-    names = ["depth", "confidence", *stage_output_names()]
-    keys = {"depth": "eval/refined_depth", "confidence": "eval/photometric_confidence"}
-    fields = {"depth": "depth", "confidence": "photometric_confidence", "logits": "prob_volume_pre",
-              "hypotheses": "depth_values"}
-    errors = {}
-    for name, o in zip(names, out):
-        stage, _, field = name.partition("_")
-        errors[name] = rel_err(o.numpy(), fx[keys.get(name) or f"eval/{stage}/{fields[field]}"][0])
+    errors = portable_errors(["depth", "confidence", *stage_output_names()], [o.numpy() for o in out], fx)
     assert max(errors.values()) < 1e-4, errors
     # the backends put back
     assert {m.backend for m in model.modules() if hasattr(m, "backend")} == {"sdpa"}
