@@ -11,7 +11,7 @@ PY := $(VENV)/bin/python
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	if [ -n "$(TORCH_SPEC)" ]; then $(PY) -m pip install -q "$(TORCH_SPEC)"; fi
-	$(PY) -m pip install -q -e ".[dev,colmap,plot,train,mesh,viewer]"
+	$(PY) -m pip install -q -e ".[dev,colmap,plot,train,mesh,viewer,onnx]"
 	touch $@
 
 install: $(VENV)/.installed

@@ -13,6 +13,8 @@ RUNS = [
     ["bench_precision.py"],
     ["bench_lite.py", "--rounds", "1"],
     ["bench_data.py", "--samples", "5"],
+    ["bench_onnx.py", "--cases", "lite:480x640", "paper:512x640", "--rounds", "1"],
+    ["onnx_parity.py"],
 ]
 
 for args in RUNS:

@@ -158,6 +158,42 @@ def _full_disk(monkeypatch, module: str, name: str) -> None:
     monkeypatch.setattr(owner, name, full)
 
 
+def onnx_folder(d: Path, opset: int = 18, **export) -> Path:
+    """A model folder as export-onnx writes it (lite, the shipped weights, ``export``'s settings) whose two graphs
+    are stand-ins (an identity stamped with ``opset``): enough for every check made before onnxruntime runs."""
+    import json
+
+    import onnx
+    from onnx import TensorProto, helper
+
+    from mvsformerpp.io.onnx_model import GRAPH_FILES
+    from mvsformerpp.models.presets import get_config
+    from mvsformerpp.models.weights import weights_for
+    from mvsformerpp.pipelines.export_onnx_config import OnnxExportConfig
+    from mvsformerpp.pipelines.onnx_record import model_record
+    from mvsformerpp.utils.files import file_sha256
+
+    folder = d / "model"
+    folder.mkdir()
+    graphs = {}
+    for name, file in GRAPH_FILES.items():
+        io_ = [helper.make_tensor_value_info(n, TensorProto.FLOAT, [1]) for n in ("x", "y")]
+        graph = helper.make_graph([helper.make_node("Identity", ["x"], ["y"])], name, io_[:1], io_[1:])
+        onnx.save(helper.make_model(graph, opset_imports=[helper.make_opsetid("", opset)]), folder / file)
+        graphs[name] = {"file": file, "sha256": file_sha256(folder / file)}
+    config = OnnxExportConfig(**export)
+    weights = weights_for(config.preset, config.checkpoint, config.seed)
+    (folder / "model.json").write_text(json.dumps(model_record(config, get_config(config.preset), weights, graphs)))
+    return folder
+
+
+def _changed_onnx_graph(d: Path) -> list[str]:
+    model = onnx_folder(d, num_views=3)
+    with open(model / "view_set.onnx", "ab") as f:
+        f.write(b"\0")
+    return recon(d, "--backend", "onnxruntime", "--onnx-model", str(model))
+
+
 # ------------------------------------------------------------------------------------------ cases
 def _mismatched_image(d: Path) -> list[str]:
     from PIL import Image
@@ -771,6 +807,42 @@ CASES: list[Case] = [
     Case("train-checkpoint-folder", "train --checkpoint naming a folder",
          lambda d: ["train", "synthetic", "-o", str(d / "run"), "--checkpoint", str(d)],
          "a folder, not a checkpoint file"),
+    Case("export-onnx-opset-too-old", "export-onnx --opset 16 (older than the graphs' operators)",
+         lambda d: ["export-onnx", "-o", str(d / "m"), "--opset", "16", "--quiet"], "opset 17"),
+    Case("export-onnx-views-out-of-range", "export-onnx --views 11",
+         lambda d: ["export-onnx", "-o", str(d / "m"), "--views", "11", "--quiet"], "between 2 and 10"),
+    Case("export-onnx-checkpoint-other-preset", "export-onnx --preset paper with the lite preset's weights",
+         lambda d: ["export-onnx", "-o", str(d / "m"), "--preset", "paper", "--checkpoint",
+                    str(shutil.copy(ROOT / "src/mvsformerpp/assets/weights/mvsformerpp-lite-synthetic.safetensors",
+                                    d / "lite.safetensors")), "--quiet"],
+         "'lite' preset"),
+    Case("export-onnx-output-not-empty", "export-onnx -o a folder of the user's own files",
+         lambda d: ["export-onnx", "-o", str(_file(d, "notes.txt").parent), "--quiet"], "not empty"),
+    Case("export-onnx-missing-extra", "export-onnx where onnxruntime is not installed",
+         lambda d: ["export-onnx", "-o", str(d / "m"), "--quiet"], r"mvsformerpp\[onnx\]",
+         patch=lambda mp: mp.setitem(sys.modules, "onnxruntime", None)),
+    Case("recon-onnx-model-without-backend", "reconstruct --onnx-model DIR without --backend onnxruntime",
+         lambda d: recon(d, "--onnx-model", str(onnx_folder(d))), "--backend onnxruntime"),
+    Case("recon-onnx-bf16", "reconstruct --backend onnxruntime --precision bf16",
+         lambda d: recon(d, "--backend", "onnxruntime", "--precision", "bf16"), "fp32"),
+    Case("recon-onnx-not-a-model", "reconstruct --onnx-model a folder without model.json",
+         lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model", str(_file(d, "notes.txt").parent)),
+         "no model.json"),
+    Case("recon-onnx-other-views", "reconstruct --onnx-model of a model exported for 5 views, the run uses 3",
+         lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model", str(onnx_folder(d, num_views=5))),
+         "exported for 5 views"),
+    Case("recon-onnx-other-temperatures", "reconstruct --onnx-model of a model with other temperatures baked in",
+         lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model",
+                         str(onnx_folder(d, num_views=3, temperatures=(1.0, 1.0, 1.0, 1.0)))), "temperatures"),
+    Case("recon-onnx-other-weights", "reconstruct --onnx-model of a model exported from a checkpoint, run without",
+         lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model", str(onnx_folder(d, num_views=3, checkpoint=str(
+             shutil.copy(ROOT / "src/mvsformerpp/assets/weights/mvsformerpp-lite-synthetic.safetensors",
+                         d / "mine.safetensors"))))), "--checkpoint it was exported from"),
+    Case("recon-onnx-changed-graph", "reconstruct --onnx-model of a folder whose graph changed after the export",
+         _changed_onnx_graph, "does not match model.json"),
+    Case("recon-onnx-runtime-too-old", "reconstruct --onnx-model of graphs in an opset newer than onnxruntime's",
+         lambda d: recon(d, "--backend", "onnxruntime", "--onnx-model", str(onnx_folder(d, opset=29, num_views=3))),
+         "cannot load this graph"),
 ]
 
 

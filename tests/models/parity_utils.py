@@ -67,3 +67,19 @@ def fixture_inputs(fx: dict[str, np.ndarray]):
 def rel_err(a, b) -> float:
     a, b = np.asarray(a, dtype=np.float64), np.asarray(b, dtype=np.float64)
     return float(np.abs(a - b).max() / max(np.abs(b).max(), 1e-12))
+
+
+_EVAL_KEYS = {"depth": "eval/refined_depth", "confidence": "eval/photometric_confidence"}
+_STAGE_FIELDS = {"depth": "depth", "confidence": "photometric_confidence", "logits": "prob_volume_pre",
+                 "hypotheses": "depth_values"}
+
+
+def portable_errors(names, outputs, fx: dict[str, np.ndarray]) -> dict[str, float]:
+    """Relative error of each output of a portable view-set graph (``depth``, ``confidence``,
+    ``stage{s}_{depth,confidence,logits,hypotheses}``, batch dropped) against the fixture's eval outputs."""
+    errors = {}
+    for name, out in zip(names, outputs):
+        stage, _, field = name.partition("_")
+        key = _EVAL_KEYS.get(name) or f"eval/{stage}/{_STAGE_FIELDS[field]}"
+        errors[name] = rel_err(np.asarray(out), fx[key][0])
+    return errors

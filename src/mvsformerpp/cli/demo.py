@@ -12,7 +12,8 @@ def run(args: argparse.Namespace) -> int:
     from mvsformerpp.pipelines.demo import DEMO_CONFIG, run_demo, temple_dir
 
     config = dataclasses.replace(DEMO_CONFIG, preset=args.preset, checkpoint=args.checkpoint, device=args.device,
-                                 precision=args.precision, max_size=args.max_size, max_images=args.max_images)
+                                 precision=args.precision, backend=args.backend, onnx_model=args.onnx_model,
+                                 max_size=args.max_size, max_images=args.max_images)
     if not args.quiet:
         print(f"Reconstructing the Middlebury temple ({temple_dir()}; see README.txt there for its credits)")
     print_intro(config, args.quiet)

@@ -11,7 +11,7 @@ from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.utils.config_flags import add_config_flags
 from mvsformerpp.utils.config_flags import config_from_args as _from_args
 
-NETWORK_FIELDS = ("preset", "checkpoint", "device", "precision")
+NETWORK_FIELDS = ("preset", "checkpoint", "device", "precision", "backend", "onnx_model")
 
 
 def add_model_args(p: argparse.ArgumentParser, default_preset: str) -> None:

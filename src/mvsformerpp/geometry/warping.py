@@ -7,6 +7,7 @@ integer pixel index, with no +0.5 offset, and source coordinates are sampled wit
 
 from __future__ import annotations
 
+import numpy as np
 import torch
 import torch.nn.functional as F
 
@@ -18,19 +19,38 @@ def projection_4x4(extrinsic: torch.Tensor, intrinsic: torch.Tensor) -> torch.Te
     return proj
 
 
+def relative_projections(extrinsics: np.ndarray, intrinsics: np.ndarray) -> np.ndarray:
+    """``[V-1, 3, 4]``: the top rows of ``P_v @ P_0^-1`` for the source views v = 1 .. V-1 of a view set, with
+    ``P = [K 0; 0 1] @ E`` (:func:`projection_4x4`), computed in float64 from world-to-camera ``E`` [V, 4, 4]
+    and intrinsics ``K`` [V, 3, 3] (pixel units, integer pixel coordinates). Row block ``[R | t]`` maps a
+    reference pixel (x, y) at depth d to ``R [x, y, 1]^T d + t``, the source pixel times its depth: what the
+    warp needs of the cameras, prepared outside a portable graph (which has no matrix inverse)."""
+    E = np.asarray(extrinsics, dtype=np.float64)
+    K = np.zeros((len(E), 4, 4))
+    K[:, :3, :3] = np.asarray(intrinsics, dtype=np.float64)[:, :3, :3]
+    K[:, 3, 3] = 1.0
+    P = K @ E
+    return (P[1:] @ np.linalg.inv(P[0]))[:, :3, :4]
+
+
+def pixel_rays(relative: torch.Tensor, H: int, W: int):
+    """``(R [x, y, 1]^T for every reference pixel [B, 3, H*W], t [B, 3, 1])`` of a relative projection
+    ``relative`` [B, 3 or 4, 4] (float32; H, W may be symbolic sizes of an exported graph)."""
+    rot, trans = relative[:, :3, :3], relative[:, :3, 3:4]
+    y, x = torch.meshgrid(
+        torch.arange(H, dtype=torch.float32, device=relative.device),
+        torch.arange(W, dtype=torch.float32, device=relative.device),
+        indexing="ij",
+    )
+    xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones_like(x).reshape(-1)))  # [3, HW]
+    return rot @ xyz, trans
+
+
 def warp_rays(src_proj: torch.Tensor, ref_proj: torch.Tensor, H: int, W: int):
-    """The per-view part of the warp: ``(R [x, y, 1]^T for every reference pixel [B, 3, H*W], t [B, 3, 1])``
-    of the relative projection ``src_proj @ ref_proj^-1``; reusable for every hypothesis chunk."""
+    """The per-view part of the warp: :func:`pixel_rays` of the relative projection ``src_proj @ ref_proj^-1``;
+    reusable for every hypothesis chunk."""
     with torch.autocast(device_type=src_proj.device.type, enabled=False):
-        proj = src_proj.float() @ torch.inverse(ref_proj.float())
-        rot, trans = proj[:, :3, :3], proj[:, :3, 3:4]
-        y, x = torch.meshgrid(
-            torch.arange(H, dtype=torch.float32, device=proj.device),
-            torch.arange(W, dtype=torch.float32, device=proj.device),
-            indexing="ij",
-        )
-        xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones_like(x).reshape(-1)))  # [3, HW]
-        return rot @ xyz, trans
+        return pixel_rays(src_proj.float() @ torch.inverse(ref_proj.float()), H, W)
 
 
 def homography_warp(
@@ -66,11 +86,7 @@ def homography_warp(
         depth = depth_hypotheses.float().reshape(B, 1, D, H * W)
         rot_xyz, trans = rays if rays is not None else warp_rays(src_proj, ref_proj, H, W)
         if depth.requires_grad or rot_xyz.requires_grad:  # differentiable form
-            pts = rot_xyz.unsqueeze(2) * depth + trans.reshape(B, 3, 1, 1)
-            xy = pts[:, :2] / (pts[:, 2:3] + 1e-6)  # [B, 2, D, HW]
-            gx = xy[:, 0] / ((W - 1) / 2) - 1
-            gy = xy[:, 1] / ((H - 1) / 2) - 1
-            grid = torch.stack((gx, gy), dim=3).reshape(B, D * H, W, 2)
+            grid = sampling_grid(rot_xyz, trans, depth, H, W)
         else:  # the same numbers with fewer passes over the [B, D, H*W] grid
             grid = _sampling_grid(rot_xyz, trans, depth[:, 0], H, W)
         if blocks > 1:
@@ -82,6 +98,18 @@ def homography_warp(
             return warped.view(blocks, C, D // blocks, H, W)
         warped = F.grid_sample(src_feat, grid, mode="bilinear", padding_mode="zeros", align_corners=True)
     return warped.reshape(B, C, D, H, W)
+
+
+def sampling_grid(rot_xyz: torch.Tensor, trans: torch.Tensor, depth: torch.Tensor, H: int, W: int) -> torch.Tensor:
+    """grid_sample coordinates (x / z, y / z) normalised with align_corners=True, for points
+    rot_xyz * depth + trans: rot_xyz [B, 3, HW], trans [B, 3, 1], depth [B, 1, D, HW] -> [B, D*H, W, 2]
+    (the differentiable form, without in-place operations)."""
+    B, D = depth.shape[0], depth.shape[2]
+    pts = rot_xyz.unsqueeze(2) * depth + trans.reshape(B, 3, 1, 1)
+    xy = pts[:, :2] / (pts[:, 2:3] + 1e-6)  # [B, 2, D, HW]
+    gx = xy[:, 0] / ((W - 1) / 2) - 1
+    gy = xy[:, 1] / ((H - 1) / 2) - 1
+    return torch.stack((gx, gy), dim=3).reshape(B, D * H, W, 2)
 
 
 def _sampling_grid(rot_xyz: torch.Tensor, trans: torch.Tensor, depth: torch.Tensor, H: int, W: int):

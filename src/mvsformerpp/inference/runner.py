@@ -93,7 +93,8 @@ class SceneInference:
                  device: str | torch.device = "cpu", precision: str = "fp32", cache_bytes: int = 2 << 30,
                  output_resolution: str = "original", attention_bf16: bool = False, min_parallax: float = 0.0):
         check_precision(precision)
-        self.model = prepared.prepare(model)  # eval mode with the inference forms built, once
+        prepare = getattr(model, "prepare_for_inference", None)  # (a network run by another runtime has its own)
+        self.model = prepare() if callable(prepare) else prepared.prepare(model)  # eval mode, inference forms built
         if callable(getattr(model, "set_attention_precision", None)):
             model.set_attention_precision("bf16" if attention_bf16 else "fp32")
         self.scene = scene

@@ -4,6 +4,10 @@
   ``scaled_dot_product_attention``, the default), ``"flash"`` (FlashAttention-2, CUDA with fp16/bf16,
   used when the ``flash_attn`` package imports) and ``"eager"`` (the textbook formula, a reference).
   ``"auto"`` picks flash where it can run and SDPA elsewhere.
+* ``"chunked"``: the textbook formula over a fixed number of query chunks (:data:`QUERY_CHUNKS`), in plain
+  matrix products and a softmax: the form of the portable (ONNX) graphs, whose token counts are symbolic
+  and whose runtimes have no memory-efficient kernel: a cost volume of 1152x1536 photos has 27 648 tokens,
+  whose whole attention matrix would take 12 GB.
 * Linear attention (Side View Attention and FMT): phi(u) = elu(u) + 1, always in fp32.
 """
 
@@ -14,7 +18,9 @@ import functools
 import torch
 import torch.nn.functional as F
 
-BACKENDS = ("auto", "sdpa", "flash", "eager")
+BACKENDS = ("auto", "sdpa", "flash", "eager", "chunked")
+QUERY_CHUNKS = 16
+"""Query chunks of the ``chunked`` backend: each holds 1/16 of the attention matrix."""
 
 
 @functools.lru_cache(maxsize=1)
@@ -51,6 +57,8 @@ def softmax_attention(
     if backend == "eager":
         attn = torch.softmax((q * scale) @ k.transpose(-2, -1), dim=-1)
         return attn @ v
+    if backend == "chunked":
+        return chunked_attention(q, k, v, scale)
     if backend == "flash":
         if not _flash_usable(q):
             raise RuntimeError(
@@ -60,6 +68,17 @@ def softmax_attention(
         out = _flash_attn_func()(q.transpose(1, 2), k.transpose(1, 2), v.transpose(1, 2), softmax_scale=scale)
         return out.transpose(1, 2)
     raise ValueError(f"unknown attention backend {backend!r}; choose one of {BACKENDS}")
+
+
+def chunked_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, scale, chunks: int = QUERY_CHUNKS):
+    """softmax(scale * q k^T) v computed for ``chunks`` consecutive slices of the queries, one after the
+    other (the same result; a slice may be empty when there are fewer queries than chunks). ``scale``: a
+    number or a scalar tensor (a graph value in an exported graph)."""
+    n = q.shape[-2]
+    step = (n + chunks - 1) // chunks
+    kt = k.transpose(-2, -1)
+    parts = [torch.softmax((q[..., i * step:(i + 1) * step, :] @ kt) * scale, dim=-1) @ v for i in range(chunks)]
+    return torch.cat(parts, dim=-2)
 
 
 def linear_attention(q: torch.Tensor, k: torch.Tensor, v: torch.Tensor, eps: float = 1e-6) -> torch.Tensor:

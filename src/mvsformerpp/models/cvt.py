@@ -19,7 +19,13 @@ TRAIN_AVG_TOKENS = 12185
 
 
 def adaptive_attention_scale(head_dim: int, num_tokens: int, train_avg_tokens: int = TRAIN_AVG_TOKENS) -> float:
-    """AAS: head_dim^-0.5 * log_{n_train}(L), keeping attention entropy stable across resolutions."""
+    """AAS: head_dim^-0.5 * log_{n_train}(L), keeping attention entropy stable across resolutions.
+
+    In a graph being exported with a symbolic token count, the scale is a graph value (a float32 scalar
+    tensor, computed in float64 as here)."""
+    if isinstance(num_tokens, torch.SymInt):
+        log_n = torch.log(torch.scalar_tensor(num_tokens, dtype=torch.float64))
+        return (head_dim ** -0.5 * log_n / math.log(train_avg_tokens)).to(torch.float32)
     return head_dim ** -0.5 * math.log(num_tokens) / math.log(train_avg_tokens)
 
 
@@ -31,14 +37,21 @@ def frustum_coordinates(K: torch.Tensor, hypotheses: torch.Tensor, depth_min: to
     X and Y min-max normalised over the whole tensor (all samples), Z clamped to [dmin, dmax] and
     normalised. Returns [B, 3, D, H, W] in [0, 1].
     """
+    return frustum_coordinates_from_inverse(torch.inverse(K.float()), hypotheses, depth_min, depth_max)
+
+
+def frustum_coordinates_from_inverse(K_inv: torch.Tensor, hypotheses: torch.Tensor, depth_min: torch.Tensor,
+                                     depth_max: torch.Tensor) -> torch.Tensor:
+    """:func:`frustum_coordinates` from the inverse intrinsics ``K_inv`` [B, 3, 3] (a portable graph has no
+    matrix inverse: its caller gives it)."""
     B, D, H, W = hypotheses.shape
     y, x = torch.meshgrid(
-        torch.arange(H, dtype=torch.float32, device=K.device),
-        torch.arange(W, dtype=torch.float32, device=K.device),
+        torch.arange(H, dtype=torch.float32, device=K_inv.device),
+        torch.arange(W, dtype=torch.float32, device=K_inv.device),
         indexing="ij",
     )
-    xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones(H * W, device=K.device)))
-    rays = torch.inverse(K.float()) @ xyz  # [B, 3, HW]
+    xyz = torch.stack((x.reshape(-1), y.reshape(-1), torch.ones_like(x).reshape(-1)))
+    rays = K_inv @ xyz  # [B, 3, HW]
     pts = rays[:, :, None] * hypotheses.reshape(B, 1, D, H * W)  # [B, 3, D, HW]
     px, py, pz = pts[:, 0], pts[:, 1], pts[:, 2]
     nx = (px - px.min()) / (px.max() - px.min() + 1e-5)

@@ -106,13 +106,16 @@ class DinoVisionTransformer(nn.Module):
             : self.num_taps - 1
         ] + [len(self.blocks) - 1]
 
-    def forward_taps(self, x: torch.Tensor) -> list[torch.Tensor]:
-        """[N, 3, H, W] (H, W multiples of the patch size) -> taps, each [N, h*w, C] (cls dropped)."""
+    def forward_taps(self, x: torch.Tensor, pos_embed: torch.Tensor | None = None) -> list[torch.Tensor]:
+        """[N, 3, H, W] (H, W multiples of the patch size) -> taps, each [N, h*w, C] (cls dropped).
+
+        ``pos_embed``: the positional embedding of this token grid, [1, 1 + h*w, C] (default
+        :meth:`interpolate_pos_embed`; a portable graph gives its own form of it)."""
         _, _, H, W = x.shape
         h, w = H // self.patch_size, W // self.patch_size
         tokens = self.patch_embed(x)
         tokens = torch.cat((self.cls_token.expand(tokens.shape[0], -1, -1), tokens), dim=1)
-        tokens = tokens + self.interpolate_pos_embed(h, w)
+        tokens = tokens + (self.interpolate_pos_embed(h, w) if pos_embed is None else pos_embed)
         taps = set(self.tap_blocks()[:-1])
         out = []
         for i, blk in enumerate(self.blocks):

@@ -46,6 +46,8 @@ class FeatureMatchingTransformer(nn.Module):
         self._pe: dict[tuple, torch.Tensor] = {}  # cache, not part of the state_dict
 
     def position_encoding(self, x: torch.Tensor) -> torch.Tensor:
+        if torch.compiler.is_exporting():  # a portable graph's sizes are symbolic: computed there, not cached
+            return sine_position_encoding_2d(self.dim, x.shape[-2], x.shape[-1]).to(x.device, x.dtype)
         key = (x.shape[-2], x.shape[-1], x.device, x.dtype)
         if key not in self._pe:
             self._pe[key] = sine_position_encoding_2d(self.dim, x.shape[-2], x.shape[-1]).to(x.device, x.dtype)

@@ -10,7 +10,6 @@ load with ``load_checkpoint`` (``--preset paper --checkpoint model_best.pth``).
 
 from __future__ import annotations
 
-import hashlib
 import json
 from functools import lru_cache
 from pathlib import Path
@@ -23,6 +22,7 @@ from mvsformerpp.models.config import architecture
 from mvsformerpp.models.mvsformer import MVSFormerPP
 from mvsformerpp.models.presets import PRESETS
 from mvsformerpp.utils.atomic import atomic_write_bytes, atomic_write_text
+from mvsformerpp.utils.files import file_sha256
 
 SHIPPED_PRESET = next(name for name, preset in PRESETS.items() if preset.shipped_weights)
 """The preset the package ships trained weights for (its record in :mod:`.presets` says so)."""
@@ -76,7 +76,7 @@ def verify(path: Path | None = None) -> Path:
     if size != record["bytes"]:
         raise FormatError(f"the default weights file is damaged or truncated ({size} bytes, expected "
                           f"{record['bytes']}): {RESTORE}", path)
-    digest = _sha256(path)
+    digest = file_sha256(path)
     if digest != record["sha256"]:
         raise FormatError(f"the default weights file is damaged (SHA-256 {digest[:12]}..., expected "
                           f"{record['sha256'][:12]}...): {RESTORE}", path)
@@ -108,14 +108,6 @@ def load_shipped(model: torch.nn.Module | None = None) -> torch.nn.Module:
     return model
 
 
-def _sha256(path: Path) -> str:
-    h = hashlib.sha256()
-    with open(path, "rb") as f:
-        for block in iter(lambda: f.read(1 << 20), b""):
-            h.update(block)
-    return h.hexdigest()
-
-
 def write_shipped(model: torch.nn.Module, preset: str, out_dir: Path, file_name: str, info: dict) -> Path:
     """Write ``model`` as shipped weights (fp16 storage) and their record into ``out_dir``; return the file.
 
@@ -129,7 +121,7 @@ def write_shipped(model: torch.nn.Module, preset: str, out_dir: Path, file_name:
             "storage": "fp16"}
     path = out_dir / file_name
     atomic_write_bytes(path, safetensors_bytes(tensors, meta))
-    record = {"file": file_name, "preset": preset, "bytes": path.stat().st_size, "sha256": _sha256(path), **info}
+    record = {"file": file_name, "preset": preset, "bytes": path.stat().st_size, "sha256": file_sha256(path), **info}
     atomic_write_text(out_dir / RECORD, json.dumps(record, indent=2) + "\n")
     shipped_record.cache_clear()
     return path

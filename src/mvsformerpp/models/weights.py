@@ -5,11 +5,14 @@ for the preset (:mod:`.shipped`), else a seeded random initialisation. The :clas
 answers every question that follows from that choice: the network with those weights
 (:meth:`Weights.build`), their identity in the resume keys, their name in config.json and the report, the
 line that tells the user, and the fusion confidence thresholds calibrated for them. A network the caller
-built (``reconstruct(..., model=net)``) is :data:`GIVEN`.
+built (``reconstruct(..., model=net)``) is :data:`GIVEN`. Weights that onnxruntime runs as an exported
+model (``reconstruct --backend onnxruntime``) are the same weights :meth:`Weights.run_by` that model: its
+identity enters theirs, so every view's resume key names what computed it.
 """
 
 from __future__ import annotations
 
+import dataclasses
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -29,6 +32,17 @@ Source = Literal["file", "shipped", "random", "given"]
 
 
 @dataclass(frozen=True)
+class Exported:
+    """An exported ONNX model of the weights that onnxruntime runs (:mod:`mvsformerpp.io.onnx_model`)."""
+
+    folder: str
+    """The model folder (``model.json`` beside the graphs)."""
+    model_id: str
+    """A short hash of its graphs (:func:`mvsformerpp.io.onnx_model.model_id`): the weights and every setting
+    baked into them."""
+
+
+@dataclass(frozen=True)
 class Weights:
     """The weights a network of ``preset`` runs (see the module docstring)."""
 
@@ -40,17 +54,40 @@ class Weights:
     """The checkpoint file as given (``file`` only)."""
     seed: int = 0
     """Seed of the initialisation before any weights load (what ``random`` runs)."""
+    exported: Exported | None = None
+    """The exported model onnxruntime runs them as (None: PyTorch runs them)."""
 
     @property
     def identity(self) -> str | None:
         """What the resume keys hold of the weights: a file's resolved path, size and modification time, the
-        shipped file's SHA-256 (new weights redo the views), the seed; None for a given network."""
+        shipped file's SHA-256 (new weights redo the views), the seed; None for a given network. Run by
+        onnxruntime, the exported model's id follows (PyTorch's keys are those it always had)."""
         if self.source == "file":
             path = Path(self.checkpoint).resolve()
-            return f"{path}:{file_identity(path)}"
-        if self.source == "shipped":
-            return "shipped:" + shipped.shipped_record()["sha256"]
-        return f"random:{self.seed}" if self.source == "random" else None
+            own = f"{path}:{file_identity(path)}"
+        elif self.source == "shipped":
+            own = "shipped:" + shipped.shipped_record()["sha256"]
+        else:
+            own = f"random:{self.seed}" if self.source == "random" else None
+        return own if self.exported is None else f"{own}|onnxruntime:{self.exported.model_id}"
+
+    @property
+    def backend(self) -> str:
+        """What runs the network: ``torch`` or ``onnxruntime``."""
+        return "torch" if self.exported is None else "onnxruntime"
+
+    @property
+    def runtime(self) -> str:
+        """What runs the network, in a few words (the summary)."""
+        if self.exported is None:
+            return "PyTorch"
+        return f"onnxruntime, the ONNX model in {self.exported.folder} (id {self.exported.model_id})"
+
+    def run_by(self, folder: str | Path, model_id: str) -> Weights:
+        """These weights as onnxruntime runs them: the exported model in ``folder`` with id ``model_id``."""
+        if self.source == "given":
+            raise ValueError("a given network runs in PyTorch")
+        return dataclasses.replace(self, exported=Exported(str(folder), model_id))
 
     @property
     def name(self) -> str:
@@ -90,8 +127,8 @@ class Weights:
         """The network of ``config`` (a configuration of :attr:`preset`) with these weights, on the CPU in
         training mode. A checkpoint is read once and refused, naming the preset it fits, when it is for
         another one."""
-        if self.source == "given":
-            raise ValueError("a given network is built by its caller")
+        if self.source == "given" or self.exported is not None:
+            raise ValueError("a given network is built by its caller, an exported one is run by onnxruntime")
         state = self._read_checkpoint() if self.source == "file" else None
         torch.manual_seed(self.seed)
         model = MVSFormerPP(config)

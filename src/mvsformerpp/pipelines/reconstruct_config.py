@@ -44,6 +44,13 @@ class ReconstructConfig:
     ``lite`` network on CPUs with AMX, where that is faster at no measured cost in accuracy; ``fp32`` is
     fp32 throughout; ``bf16``/``fp16`` run the network under autocast (bf16 is the reference's GPU setting;
     cost volumes stay fp32)."""
+    backend: Literal["torch", "onnxruntime", "auto"] = field(default="torch", metadata={"group": NETWORK})
+    """What runs the network: ``torch`` (PyTorch), ``onnxruntime`` (the network exported as ONNX graphs: see
+    --onnx-model; fp32, CPU or onnxruntime's CUDA provider), or ``auto``: onnxruntime where it was measured
+    clearly faster than PyTorch for the preset and device (bench/bench_onnx.py), else torch."""
+    onnx_model: str | None = field(default=None, metadata={"group": NETWORK, "metavar": "DIR"})
+    """The exported model onnxruntime runs (``mvsformerpp export-onnx``; it must hold the run's weights, views
+    and temperatures); default: the run's network exported on first use into OUT/onnx and kept there."""
     max_size: int | None = field(default=1536, metadata={"group": RUN, "metavar": "PX"})
     """Cap on the longer side of the working resolution (images are never upscaled and the aspect ratio
     is kept)."""
@@ -139,6 +146,13 @@ class ReconstructConfig:
         if self.min_parallax is not None and not (math.isfinite(self.min_parallax) and 0 <= self.min_parallax <= 4):
             raise InputError(f"{config_flag('min_parallax')} must be between 0 (off) and 4 stage-1 pixels per plane, "
                              f"got {self.min_parallax}")
+        if self.onnx_model is not None and self.backend == "torch":
+            raise InputError(f"{config_flag('onnx_model')} is run by onnxruntime: add {config_flag('backend')} "
+                             "onnxruntime")
+        if self.backend == "onnxruntime" and self.precision in ("bf16", "fp16"):
+            raise InputError(f"{config_flag('backend')} onnxruntime runs the exported graphs in fp32: use "
+                             f"{config_flag('precision')} fp32 (or auto), or {config_flag('backend')} torch for "
+                             f"{self.precision}")
         if len(self.temperatures) != 4:
             raise InputError(f"{config_flag('temperatures')} needs one value per stage (4), got {self.temperatures}")
         if not all(math.isfinite(t) and t > 0 for t in self.temperatures):
@@ -177,8 +191,8 @@ class ReconstructConfig:
         d = dataclasses.asdict(self)
         d["min_parallax"] = self.stage1_min_parallax
         for k in ("device", "memory_gb", "cache_mb", "fusion", "fusion_conf", "fusion_disp", "fusion_num_consistent",
-                  "fusion_num_src_views", "fusion_resolution", "mask_dir",
-                  "sfm", "cvt_shifts"):  # (SfM: cameras)
+                  "fusion_num_src_views", "fusion_resolution", "mask_dir", "sfm", "cvt_shifts", "backend",
+                  "onnx_model"):  # (SfM: cameras; the backend: the weights' identity, models.weights)
             d.pop(k)
         return d
 

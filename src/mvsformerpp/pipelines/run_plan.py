@@ -33,6 +33,7 @@ from mvsformerpp.io.output_folder import CONFIG, VIEWS, OutputFolder, disk_full_
 from mvsformerpp.io.scene import Scene
 from mvsformerpp.models.presets import PRESETS, get_config
 from mvsformerpp.models.weights import Weights
+from mvsformerpp.pipelines.backend import backend_weights
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 from mvsformerpp.pipelines.run import Run
 from mvsformerpp.pipelines.scene_input import SceneInput, warn_if_range_misses_scene, working_scene
@@ -60,7 +61,7 @@ class RunPlan:
     keys: list[str]
     """Per view: the hash of what its depth map depends on."""
     weights: Weights
-    """The weights the network runs."""
+    """The weights the network runs, and what runs them (PyTorch or onnxruntime: :mod:`.backend`)."""
     fusion: FusionChoice | None
     """The settings fusion runs with (None: ``--fusion none``)."""
     attention_bf16: bool = False
@@ -104,7 +105,7 @@ def make_plan(run: Run, source: SceneInput) -> RunPlan:
     if config.depth_range is not None:
         warn_if_range_misses_scene(run.input_path, run.folder.root, config)
     long_side = working_long_side(source.scene, config, run.device)
-    plan = plan_run(run.input_path, source, config, run.device, long_side, run.weights)
+    plan = plan_run(run.input_path, source, config, run.device, long_side, backend_weights(run, config))
     plan = dataclasses.replace(plan, todo=tuple(write_layout(run.folder, plan)))
     if not run.quiet:
         print(plan_line(plan), flush=True)
@@ -130,12 +131,14 @@ def cap_views(config: ReconstructConfig, num_images: int) -> ReconstructConfig:
 def plan_run(input_path: str | Path, source: SceneInput, config: ReconstructConfig, device: torch.device,
              long_side: int, weights: Weights) -> RunPlan:
     """The plan for ``source`` at the working resolution ``long_side`` (:func:`working_long_side`) with
-    ``weights`` (:data:`~mvsformerpp.models.weights.GIVEN`: the caller's network)."""
+    ``weights`` (:data:`~mvsformerpp.models.weights.GIVEN`: the caller's network; their identity, with the
+    exported model's when onnxruntime runs them, enters every view's key)."""
     scene = source.scene
     plans = plan_views([(v.width, v.height) for v in scene.views], long_side)
     resolved = resolved_size(long_side, plans)
     given = weights.source == "given"
-    attention_bf16 = not given and attention_in_bf16(device, config.precision, PRESETS[config.preset].attention_bf16)
+    attention_bf16 = (not given and weights.backend == "torch"
+                      and attention_in_bf16(device, config.precision, PRESETS[config.preset].attention_bf16))
     settings = {**config.result_settings(), **resolved, "precision": precision_name(config.precision, attention_bf16)}
     if not given:  # the preset's network as built for this run (a given network is the caller's)
         settings["network"] = config.network_settings()
@@ -161,7 +164,10 @@ def write_layout(folder: OutputFolder, plan: RunPlan) -> list[int]:
     folder.write_json(VIEWS, {f"{i:08d}": v.name for i, v in enumerate(scene.views)})
     folder.write_json(CONFIG, {"config": dataclasses.asdict(config),
                                "resolved": {**plan.resolved, "fusion_conf": plan.fusion_conf,
-                                            "weights": plan.weights.name, "precision": plan.precision},
+                                            "weights": plan.weights.name, "precision": plan.precision,
+                                            "backend": plan.weights.backend,
+                                            "onnx_model": None if (e := plan.weights.exported) is None
+                                            else {"folder": e.folder, "id": e.model_id}},
                                "scene_fingerprint": plan.source.fingerprint, "input": str(plan.input_path.resolve()),
                                "source_format": plan.source.full.source_format,
                                "num_views_in_input": len(plan.source.full)})

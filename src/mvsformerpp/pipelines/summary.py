@@ -34,6 +34,7 @@ def summarize(run: Run, fused: Fused) -> dict:
         "preset": config.preset,
         "checkpoint": config.checkpoint,
         "weights": plan.weights.description,
+        "backend": plan.weights.runtime,
         "timings": {k: round(v, 3) if isinstance(v, float) else v for k, v in timings.items()},
         "feature_cache": _sum_stats([r["feature_cache"] for r in per_rank]),
         "schedule": None if done.schedule is None else {k: v for k, v in done.schedule.items() if k != "order"},
