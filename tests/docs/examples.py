@@ -201,6 +201,18 @@ def _small_reconstruction(dest: Path, cache: Path) -> None:
     shutil.copytree(made, dest, symlinks=True)
 
 
+def _colmap_project(dest: Path, cache: Path) -> None:
+    """A COLMAP project (``images/``, ``sparse/``: pinhole cameras, poses, 3-D points with their observations):
+    the small reconstruction exported with ``mvsformerpp export --to colmap``, made once per session."""
+    made = cache / "my_colmap_project"
+    if not made.is_dir():
+        from mvsformerpp.pipelines.export import export_colmap
+
+        _small_reconstruction(cache / "exported_scene", cache)
+        export_colmap(cache / "exported_scene", made, quiet=True)
+    shutil.copytree(made, dest, symlinks=True)
+
+
 def _official_checkpoint(dest: Path, cache: Path) -> None:
     """A checkpoint in the official trainer's layout (``module.`` keys under ``state_dict``) for the paper
     preset, with the randomly initialised weights of ``build_model("paper")``: the official file's form,
@@ -244,6 +256,7 @@ def _checkout(dest: Path, cache: Path) -> None:
 INPUTS = {
     "my_photos": _temple_photos,
     "my_scene": _small_reconstruction,
+    "my_colmap_project": _colmap_project,
     "model_best.pth": _official_checkpoint,
     "dtu_test": _dtu_test_set,
     "checkout": _checkout,
