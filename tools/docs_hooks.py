@@ -49,7 +49,7 @@ def _value(action: argparse.Action) -> str:
     if action.nargs == 0:
         return ""
     if action.choices is not None and not isinstance(action, argparse._SubParsersAction):
-        one = "|".join(str(c) for c in action.choices)
+        one = "{" + ",".join(str(c) for c in action.choices) + "}"
     elif isinstance(action.metavar, tuple):
         return " ".join(action.metavar)
     else:
@@ -71,6 +71,8 @@ def _help(parser: argparse.ArgumentParser, action: argparse.Action) -> str:
 
 
 def _cell(text: str) -> str:
+    """Text for a table cell: its pipes escaped (a code span in a cell must hold none: GitHub and MkDocs read an
+    escaped pipe inside one differently)."""
     return text.replace("|", "\\|")
 
 
@@ -139,7 +141,7 @@ def _type_name(tp) -> str:
         return " or ".join(f"`{a}`" for a in typing.get_args(tp))
     text = str(tp).replace("typing.", "")
     text = re.sub(r"<class '([\w.]+)'>", r"\1", text)
-    return f"`{text.replace('NoneType', 'None')}`"
+    return f"`{text.replace('NoneType', 'None').replace(' | ', ' or ')}`"
 
 
 def _yaml_value(value) -> str:
