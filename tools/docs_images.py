@@ -7,9 +7,10 @@ Writes docs/images/report.png (headless Chromium's rendering of OUT/report.html,
 pixels, with this machine's folders shortened to OUT and the input's name) and docs/images/mesh.png
 (OUT's TSDF mesh, made with `mvsformerpp mesh` if OUT/mesh.ply is missing, seen from the first camera:
 each triangle's projection filled with its Lambert shade, nearest last), docs/images/poisson.png (Poisson
-at depth 9: closed, cut by a 10 % density percentile, cut by the default distance rule; same view), docs/images/depth.png (the
-first view's photo, its depth as fusion keeps it and its confidence, OUT's own preview images side by side) and
-docs/images/viewer.png (`mvsformerpp view OUT` in headless Chromium after its cloud has drawn).
+at depth 9: closed, cut by a 10 % density percentile, cut by the default distance rule; same view),
+docs/images/depth.png (the first view's photo, its depth as fusion keeps it and its confidence, OUT's own
+preview images side by side) and docs/images/viewer.png (`mvsformerpp view OUT` in headless Chromium after
+its cloud has drawn).
 """
 
 from __future__ import annotations

@@ -30,19 +30,27 @@ def numbers(text: str) -> list[str]:
 
 
 def blocks(text: str) -> list[set[str]]:
-    """The numbers of each block of ``text``: runs of lines between blank lines, a fenced code block whole."""
+    """The numbers of each block of ``text``: runs of lines between blank lines; a fenced code block is one block."""
     out, current, fence = [], [], False
+
+    def flush():
+        if current:
+            out.append(set(numbers("\n".join(current))))
+            current.clear()
+
     for line in text.splitlines():
         if line.lstrip().startswith("```"):
+            if not fence:
+                flush()
+            current.append(line)
+            if fence:
+                flush()
             fence = not fence
-        if not line.strip() and not fence:
-            if current:
-                out.append(set(numbers("\n".join(current))))
-            current = []
+        elif not line.strip() and not fence:
+            flush()
         else:
             current.append(line)
-    if current:
-        out.append(set(numbers("\n".join(current))))
+    flush()
     return out
 
 
