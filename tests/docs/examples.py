@@ -191,12 +191,12 @@ def _temple_photos(dest: Path, cache: Path) -> None:
 
 
 def _small_reconstruction(dest: Path, cache: Path) -> None:
-    """A finished ``reconstruct`` output folder (the temple, 5 views at 320x240), made once per session."""
+    """A finished ``reconstruct`` output folder (the temple, 3 views at 160x120), made once per session."""
     made = cache / "my_scene"
     if not made.is_dir():
         import mvsformerpp
 
-        config = mvsformerpp.ReconstructConfig(max_size=320, max_images=5)
+        config = mvsformerpp.ReconstructConfig(max_size=160, max_images=3)
         mvsformerpp.reconstruct(mvsformerpp.sample_scene_path(), made, config, quiet=True)
     shutil.copytree(made, dest, symlinks=True)
 
