@@ -15,7 +15,9 @@ its cloud has drawn).
 
 from __future__ import annotations
 
+import json
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -24,14 +26,17 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
+from mvsformerpp.io.mvsnet import load_mvsnet_scene
+from mvsformerpp.io.output_folder import CONFIDENCE_VIS, DEPTH_VIS, open_run, view_stem
+from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
+from mvsformerpp.viewer.app import ViewerConfig, start_viewer
+
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
 
 
 def report_png(out: Path, png: Path) -> None:
     """The report as a browser shows it, with this machine's folders shortened (OUT, the input's name)."""
-    import json
-
     exe = _chromium()
     text = (out / "report.html").read_text()
     source = json.loads((out / "config.json").read_text()).get("input")
@@ -58,9 +63,6 @@ def _chromium() -> str:
 
 def mesh_png(out: Path, png: Path, size: int = 720, mesh: Path | None = None, *flags: str) -> None:
     """``mesh`` (default OUT/mesh.ply, made with ``mvsformerpp mesh OUT FLAGS`` when missing) from the first camera."""
-    from mvsformerpp.io.mvsnet import load_mvsnet_scene
-    from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
-
     mesh = mesh or out / "mesh.ply"
     if not mesh.is_file():
         subprocess.run([sys.executable, "-m", "mvsformerpp", "mesh", str(out), "-o", str(mesh), "--quiet", *flags],
@@ -109,8 +111,6 @@ def poisson_png(out: Path, png: Path, size: int = 420) -> None:
 
 def depth_png(out: Path, png: Path, view: int = 0, height: int = 300) -> None:
     """View ``view``'s photo, its depth as fusion keeps it and its confidence (OUT's previews), side by side."""
-    from mvsformerpp.io.output_folder import CONFIDENCE_VIS, DEPTH_VIS, open_run, view_stem
-
     stem = view_stem(view)
     sources = (open_run(out).views[view].image, out / DEPTH_VIS / f"{stem}.png", out / CONFIDENCE_VIS / f"{stem}.png")
     labels = ("photo", "depth (grey: dropped by fusion)", "confidence")
@@ -130,10 +130,6 @@ def depth_png(out: Path, png: Path, view: int = 0, height: int = 300) -> None:
 
 def viewer_png(out: Path, png: Path, seconds: int = 20) -> None:
     """The viewer's page once its cloud has drawn (software WebGL), 1280x800."""
-    import socket
-
-    from mvsformerpp.viewer.app import ViewerConfig, start_viewer
-
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]

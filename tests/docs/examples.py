@@ -31,6 +31,13 @@ import time
 import urllib.request
 from pathlib import Path
 
+import torch
+
+import mvsformerpp
+from mvsformerpp.models import build_model
+from mvsformerpp.pipelines.demo import temple_dir
+from mvsformerpp.pipelines.export import export_colmap
+
 ROOT = Path(__file__).resolve().parents[2]
 MARKER = re.compile(r"^<!-- (run(?: [\w./ -]*)?|not run: .+) -->$")
 FENCE = re.compile(r"^```(\w+)\s*$")
@@ -183,8 +190,6 @@ def run_python(example: Example, cwd: Path, namespace: dict) -> None:
 
 def _temple_photos(dest: Path, cache: Path) -> None:
     """A folder of photos without cameras: the bundled temple's 16 PNG files."""
-    from mvsformerpp.pipelines.demo import temple_dir
-
     dest.mkdir()
     for p in sorted(temple_dir().glob("*.png")):
         shutil.copy(p, dest / p.name)
@@ -194,8 +199,6 @@ def _small_reconstruction(dest: Path, cache: Path) -> None:
     """A finished ``reconstruct`` output folder (the temple, 3 views at 160x120), made once per session."""
     made = cache / "my_scene"
     if not made.is_dir():
-        import mvsformerpp
-
         config = mvsformerpp.ReconstructConfig(max_size=160, max_images=3)
         mvsformerpp.reconstruct(mvsformerpp.sample_scene_path(), made, config, quiet=True)
     shutil.copytree(made, dest, symlinks=True)
@@ -206,8 +209,6 @@ def _colmap_project(dest: Path, cache: Path) -> None:
     the small reconstruction exported with ``mvsformerpp export --to colmap``, made once per session."""
     made = cache / "my_colmap_project"
     if not made.is_dir():
-        from mvsformerpp.pipelines.export import export_colmap
-
         _small_reconstruction(cache / "exported_scene", cache)
         export_colmap(cache / "exported_scene", made, quiet=True)
     shutil.copytree(made, dest, symlinks=True)
@@ -219,10 +220,6 @@ def _official_checkpoint(dest: Path, cache: Path) -> None:
     not its values (they are not bundled). Made once per session and linked."""
     made = cache / "model_best.pth"
     if not made.is_file():
-        import torch
-
-        from mvsformerpp.models import build_model
-
         torch.manual_seed(0)
         sd = build_model("paper").state_dict()
         torch.save({"arch": "DINOv2MVSNet", "epoch": 0, "state_dict": {f"module.{k}": v for k, v in sd.items()}},

@@ -9,6 +9,9 @@ from pathlib import Path
 
 import pytest
 
+from mvsformerpp.cli import build_parser
+from mvsformerpp.training.config import RECIPES, TrainConfig
+
 ROOT = Path(__file__).resolve().parents[2]
 
 
@@ -31,8 +34,6 @@ def _parsers(parser: argparse.ArgumentParser, name: str = "mvsformerpp"):
 
 
 def test_the_cli_page_holds_every_command_and_flag():
-    from mvsformerpp.cli import build_parser
-
     page = hooks.cli_reference()
     commands = list(_parsers(build_parser()))
     assert len(commands) >= 17
@@ -45,8 +46,6 @@ def test_the_cli_page_holds_every_command_and_flag():
 
 
 def test_the_train_config_page_holds_every_field_and_recipe():
-    from mvsformerpp.training.config import RECIPES, TrainConfig
-
     page = hooks.train_config_reference()
     for f in dataclasses.fields(TrainConfig):
         assert f"| `{f.name}` |" in page, f.name
