@@ -41,6 +41,9 @@ from mvsformerpp.pipelines.export import export_colmap
 ROOT = Path(__file__).resolve().parents[2]
 MARKER = re.compile(r"^<!-- (run(?: [\w./ -]*)?|not run: .+) -->$")
 FENCE = re.compile(r"^```(\w+)\s*$")
+# A comment whose first word is "run" (or "not run") but that MARKER does not read is a typo; other comments
+# (e.g. one naming a script, "<!-- run_view_set.py -->") are the page's own.
+LOOKS_LIKE_MARKER = re.compile(r"^<!-- (not )?run\b(?![_.-])")
 FLAGS = {"slow", "cuda", "serve"}
 
 
@@ -90,7 +93,7 @@ def examples(path: Path) -> list[Example]:
     for k, line in enumerate(lines):
         m = MARKER.match(line.strip())
         if not m:
-            if line.strip().startswith("<!-- run") or line.strip().startswith("<!-- not run"):
+            if LOOKS_LIKE_MARKER.match(line.strip()):
                 raise ValueError(f"{path.name}:{k + 1}: malformed example marker {line.strip()!r}")
             continue
         fence = FENCE.match(lines[k + 1]) if k + 1 < len(lines) else None

@@ -69,6 +69,8 @@ def test_markers_parse(tmp_path):
     assert [(b.run, b.tier, b.inputs, b.line) for b in blocks] == [
         (True, "slow", ("my_photos", "my_scene"), 2), (False, "default", (), 7)]
     assert ex.unmarked_blocks(page) == [10]
+    page.write_text("<!-- run_view_set.py -->\n```python\nx = 1\n```\n")  # a comment of the page's own
+    assert ex.examples(page) == [] and ex.unmarked_blocks(page) == [2]
     for bad in ("<!-- run fast -->\n```bash\nls\n```\n", "<!-- run with nothing_known -->\n```bash\nls\n```\n",
                 "<!-- run -->\n\n```bash\nls\n```\n", "<!-- run -->\n```text\nls\n```\n"):
         page.write_text(bad)
