@@ -6,12 +6,12 @@ VENV ?= .venv
 TORCH_SPEC ?= torch==2.13.0
 PY := $(VENV)/bin/python
 
-.PHONY: install test test-all lint demo bench clean
+.PHONY: install test test-all lint demo bench docs docs-serve clean
 
 $(VENV)/.installed: pyproject.toml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	if [ -n "$(TORCH_SPEC)" ]; then $(PY) -m pip install -q "$(TORCH_SPEC)"; fi
-	$(PY) -m pip install -q -e ".[dev,colmap,plot,train,mesh,viewer,onnx]"
+	$(PY) -m pip install -q -e ".[dev,colmap,plot,train,mesh,viewer,onnx,docs]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -31,5 +31,12 @@ demo: install
 bench: install
 	$(PY) bench/run_all.py
 
+# The documentation site, into site/ (strict: broken links and out-of-date generated pages fail).
+docs: install
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs build --strict
+
+docs-serve: install
+	NO_MKDOCS_2_WARNING=1 $(VENV)/bin/mkdocs serve
+
 clean:
-	rm -rf $(VENV) build *.egg-info src/*.egg-info .pytest_cache
+	rm -rf $(VENV) build site *.egg-info src/*.egg-info .pytest_cache

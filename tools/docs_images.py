@@ -1,4 +1,5 @@
-"""The pictures of docs/images: the demo run's report, viewer, TSDF mesh and Poisson meshes.
+"""The pictures of docs/images: the demo run's report, viewer, a depth map with its confidence, the TSDF mesh
+and the Poisson meshes.
 
     python tools/docs_images.py OUT        # OUT: a `mvsformerpp demo -o OUT` folder (with report.html)
 
@@ -6,13 +7,17 @@ Writes docs/images/report.png (headless Chromium's rendering of OUT/report.html,
 pixels, with this machine's folders shortened to OUT and the input's name) and docs/images/mesh.png
 (OUT's TSDF mesh, made with `mvsformerpp mesh` if OUT/mesh.ply is missing, seen from the first camera:
 each triangle's projection filled with its Lambert shade, nearest last), docs/images/poisson.png (Poisson
-at depth 9: closed, cut by a 10 % density percentile, cut by the default distance rule; same view) and
-docs/images/viewer.png (`mvsformerpp view OUT` in headless Chromium after its cloud has drawn).
+at depth 9: closed, cut by a 10 % density percentile, cut by the default distance rule; same view),
+docs/images/depth.png (the first view's photo, its depth as fusion keeps it and its confidence, OUT's own
+preview images side by side) and docs/images/viewer.png (`mvsformerpp view OUT` in headless Chromium after
+its cloud has drawn).
 """
 
 from __future__ import annotations
 
+import json
 import shutil
+import socket
 import subprocess
 import sys
 import tempfile
@@ -21,14 +26,17 @@ from pathlib import Path
 import numpy as np
 from PIL import Image, ImageDraw
 
+from mvsformerpp.io.mvsnet import load_mvsnet_scene
+from mvsformerpp.io.output_folder import CONFIDENCE_VIS, DEPTH_VIS, open_run, view_stem
+from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
+from mvsformerpp.viewer.app import ViewerConfig, start_viewer
+
 ROOT = Path(__file__).resolve().parents[1]
 IMAGES = ROOT / "docs" / "images"
 
 
 def report_png(out: Path, png: Path) -> None:
     """The report as a browser shows it, with this machine's folders shortened (OUT, the input's name)."""
-    import json
-
     exe = _chromium()
     text = (out / "report.html").read_text()
     source = json.loads((out / "config.json").read_text()).get("input")
@@ -55,9 +63,6 @@ def _chromium() -> str:
 
 def mesh_png(out: Path, png: Path, size: int = 720, mesh: Path | None = None, *flags: str) -> None:
     """``mesh`` (default OUT/mesh.ply, made with ``mvsformerpp mesh OUT FLAGS`` when missing) from the first camera."""
-    from mvsformerpp.io.mvsnet import load_mvsnet_scene
-    from mvsformerpp.io.ply import ply_points, read_ply, read_ply_faces
-
     mesh = mesh or out / "mesh.ply"
     if not mesh.is_file():
         subprocess.run([sys.executable, "-m", "mvsformerpp", "mesh", str(out), "-o", str(mesh), "--quiet", *flags],
@@ -104,12 +109,27 @@ def poisson_png(out: Path, png: Path, size: int = 420) -> None:
     canvas.quantize(64).save(png, optimize=True)
 
 
+def depth_png(out: Path, png: Path, view: int = 0, height: int = 300) -> None:
+    """View ``view``'s photo, its depth as fusion keeps it and its confidence (OUT's previews), side by side."""
+    stem = view_stem(view)
+    sources = (open_run(out).views[view].image, out / DEPTH_VIS / f"{stem}.png", out / CONFIDENCE_VIS / f"{stem}.png")
+    labels = ("photo", "depth (grey: dropped by fusion)", "confidence")
+    tiles = []
+    for path, label in zip(sources, labels):
+        img = Image.open(path).convert("RGB")
+        img = img.resize((round(img.width * height / img.height), height), Image.LANCZOS)
+        ImageDraw.Draw(img).text((8, 8), label, fill=(255, 255, 255))
+        tiles.append(img)
+    canvas = Image.new("RGB", (sum(t.width for t in tiles) + 8 * (len(tiles) - 1), height), (255, 255, 255))
+    x = 0
+    for tile in tiles:
+        canvas.paste(tile, (x, 0))
+        x += tile.width + 8
+    canvas.quantize(256).save(png, optimize=True)
+
+
 def viewer_png(out: Path, png: Path, seconds: int = 20) -> None:
     """The viewer's page once its cloud has drawn (software WebGL), 1280x800."""
-    import socket
-
-    from mvsformerpp.viewer.app import ViewerConfig, start_viewer
-
     with socket.socket() as s:
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
@@ -135,8 +155,9 @@ def main() -> None:
     report_png(out, IMAGES / "report.png")
     mesh_png(out, IMAGES / "mesh.png")
     poisson_png(out, IMAGES / "poisson.png")
+    depth_png(out, IMAGES / "depth.png")
     viewer_png(out, IMAGES / "viewer.png")
-    for name in ("report.png", "mesh.png", "poisson.png", "viewer.png"):
+    for name in ("report.png", "mesh.png", "poisson.png", "depth.png", "viewer.png"):
         print(f"wrote docs/images/{name} ({(IMAGES / name).stat().st_size / 1024:.0f} KiB)")
 
 
