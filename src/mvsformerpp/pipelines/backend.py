@@ -37,9 +37,10 @@ MEASURED: dict[tuple[str, str], float] = {}
 
 def backend_weights(run: Run, config: ReconstructConfig) -> Weights:
     """The run's weights with what runs them for the plan's settings ``config`` (``num_views`` capped): PyTorch,
-    or onnxruntime on the model :func:`run_model` gives (``--backend auto`` resolved; one process only)."""
+    or onnxruntime on the model :func:`run_model` gives (``--backend auto`` resolved; onnxruntime runs in one
+    process, so ``auto`` under torchrun keeps PyTorch)."""
     backend = resolve_backend(config, run.device, given_model=run.model is not None)
-    if backend == "torch":
+    if backend == "torch" or (run.world_size > 1 and config.backend == "auto"):
         return run.weights
     if run.world_size > 1:
         raise InputError(f"{config_flag('backend')} onnxruntime runs in one process: run it without torchrun")
