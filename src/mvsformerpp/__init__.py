@@ -25,7 +25,7 @@ _LAZY = {
     "load_default_model": ("mvsformerpp.models.shipped", "load_shipped"),
     "default_weights_path": ("mvsformerpp.models.shipped", "shipped_weights_path"),
     "default_fusion_conf": ("mvsformerpp.models.shipped", "calibrated_conf"),
-    "sample_scene_path": ("mvsformerpp.pipelines.demo", "temple_dir"),
+    "sample_scene_path": ("mvsformerpp.io.middlebury", "temple_dir"),
 }
 
 __all__ = ["__version__", *_LAZY]

@@ -30,6 +30,13 @@ from mvsformerpp.io.scene import Scene, View
 from mvsformerpp.io.viewselect import neighbors_from_cameras, point_closest_to_axes
 from mvsformerpp.utils.atomic import atomic_open
 
+
+def temple_dir() -> Path:
+    """Folder of the temple the package ships (``assets/templeSparseRing``): its photos, ``templeSR_par.txt`` and
+    README.txt with the data's attribution."""
+    return Path(__file__).resolve().parent.parent / "assets" / "templeSparseRing"
+
+
 _NUM = r"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
 _BOX_RE = re.compile(rf"\(\s*({_NUM})\s*[, ]\s*({_NUM})\s*[, ]\s*({_NUM})\s*\)")
 

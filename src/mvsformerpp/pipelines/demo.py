@@ -9,16 +9,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from mvsformerpp.io.middlebury import temple_dir
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
 
 # The lite network at the photos' own size (640x480; about a minute on a 2-core CPU), five views per depth map,
 # dynamic fusion at the confidence threshold calibrated for the shipped weights (docs/model-card.md).
 DEMO_CONFIG = ReconstructConfig(preset="lite", max_size=640, num_views=5, fusion="dynamic")
-
-
-def temple_dir() -> Path:
-    """Folder of the bundled temple images, ``templeSR_par.txt`` and README.txt."""
-    return Path(__file__).resolve().parent.parent / "assets" / "templeSparseRing"
 
 
 def run_demo(out_dir: str | Path, config: ReconstructConfig = DEMO_CONFIG, quiet: bool = False) -> dict:

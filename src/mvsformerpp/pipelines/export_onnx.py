@@ -31,11 +31,11 @@ from mvsformerpp.inference.resolution import plan_views
 from mvsformerpp.inference.runner import SceneInference
 from mvsformerpp.io.detect import load_scene
 from mvsformerpp.io.images import read_image
+from mvsformerpp.io.middlebury import temple_dir
 from mvsformerpp.io.onnx_model import GRAPH_FILES, MODEL_JSON, OnnxModel, read_model_folder
 from mvsformerpp.models.checkpoint import require_checkpoint_file
 from mvsformerpp.models.portable import EncoderGraph, ViewSetGraph, portable_attention
 from mvsformerpp.models.weights import Weights, weights_for
-from mvsformerpp.pipelines.demo import temple_dir
 from mvsformerpp.pipelines.export_onnx_config import MAX_VIEWS, MIN_OPSET, OnnxExportConfig
 from mvsformerpp.pipelines.onnx_record import graph_io, model_record
 from mvsformerpp.pipelines.reconstruct_config import ReconstructConfig
