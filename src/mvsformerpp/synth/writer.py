@@ -36,7 +36,7 @@ def _pairs(centers: np.ndarray, num_neighbors: int) -> dict:
 def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, height: int = 256, width: int = 320,
                    num_objects: int | None = None, gt_points: int = 200_000, style: str = "classic",
                    sensor_width: tuple[float, float] | None = None, detail: float = 0.0,
-                   layout: str | None = None, plain_walls: float = 0.0) -> Path:
+                   layout: str | None = None, plain_walls: float = 0.0, textures: str | None = None) -> Path:
     """Render a scene of ``style`` (see :func:`random_scene`) and write it (deterministic for a seed):
 
     ``images/NNNNNNNN.png``, ``cams/NNNNNNNN_cam.txt`` (4-number depth line from the GT depth range),
@@ -47,11 +47,11 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
     principal point in the middle); their cam files hold the whole photo's depth range joined with the
     view's, as a real crop's would. ``detail``: strength of the fine surface detail (see
     :func:`random_scene`). ``layout``, ``plain_walls``: the ``train`` style's layout and share of painted
-    walls (:func:`random_scene`).
+    walls, ``textures`` its texture library (:func:`random_scene`).
     """
     out = Path(out_dir)
     scene = random_scene(seed, num_views, height, width, num_objects, style=style, sensor_width=sensor_width,
-                         detail=detail, layout=layout, plain_walls=plain_walls)
+                         detail=detail, layout=layout, plain_walls=plain_walls, textures=textures)
     photo_points = [sensor_points(scene, cam) for cam in scene.cameras]
     if sensor_width is not None:  # windows as photos of their own (principal points in the middle)
         scene.cameras = [centred_window(cam, width, height) for cam in scene.cameras]

@@ -422,6 +422,10 @@ def check_config(config: TrainConfig) -> TrainConfig:
         from mvsformerpp.data.synthetic import resolve_source
 
         resolve_source(config.synthetic_source)
+        if config.synthetic_options.get("textures") is not None:  # a texture library: checked before training
+            from mvsformerpp.synth.texture_library import read_manifest
+
+            read_manifest(config.synthetic_options["textures"])
     if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
         raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
     if config.min_overlap is not None and not 0 <= config.min_overlap <= 1:
