@@ -8,6 +8,8 @@ Layouts (names returned by :func:`detect_layout`):
 ``blendedmvs``  ``blended_images/`` + ``cams/`` (also nested ``PID/PID/PID``)
 ``colmap``      COLMAP project (``sparse/0``, ``sparse``, ``dense/sparse`` or the model files directly)
 ``middlebury``  a ``*_par.txt`` file or a folder holding one
+``idr``         IDR / NeuS ``cameras_sphere.npz`` (or ``cameras.npz``) + ``image/`` (or ``images/``), or that file
+``llff``        LLFF ``poses_bounds.npy`` + ``images/``, or that file
 ``images``      photos without cameras: not loadable here (structure from motion is needed first)
 """
 
@@ -25,18 +27,21 @@ from mvsformerpp.io.benchmarks import (
 )
 from mvsformerpp.io.colmap import find_colmap_model, load_colmap_scene
 from mvsformerpp.io.colmap_model import model_extension
+from mvsformerpp.io.idr import find_camera_file, load_idr_scene
 from mvsformerpp.io.images import list_images
+from mvsformerpp.io.llff import POSES_FILE, load_llff_scene
 from mvsformerpp.io.middlebury import find_par_file, load_middlebury_scene
 from mvsformerpp.io.mvsnet import DEFAULT_NUM_DEPTH, DepthFormat, cam_files, load_mvsnet_scene
 from mvsformerpp.io.scene import Scene
 
-LAYOUTS = ("mvsnet", "tnt", "dtu", "blendedmvs", "colmap", "middlebury", "images")
+LAYOUTS = ("mvsnet", "tnt", "dtu", "blendedmvs", "colmap", "middlebury", "idr", "llff", "images")
 
 _LOOKED_FOR = (
     "an MVSNet folder (images/ + cams/NNNNNNNN_cam.txt [+ pair.txt]), a Tanks-and-Temples scene "
     "(the same + short_range_cameras/ beside it), a DTU training root (Cameras/ + Rectified/), a BlendedMVS "
     "scene (blended_images/ + cams/), a COLMAP project (sparse/0, sparse/ or cameras/images/points3D "
-    ".bin/.txt, + images/), a Middlebury *_par.txt file or a folder holding one"
+    ".bin/.txt, + images/), a Middlebury *_par.txt file or a folder holding one, an IDR/NeuS scene "
+    "(cameras_sphere.npz + image/), an LLFF capture (poses_bounds.npy + images/)"
 )
 
 _MODEL_FILES = {f"{n}{e}" for n in ("cameras", "images", "points3D") for e in (".bin", ".txt")}
@@ -79,6 +84,10 @@ def detect_layout(path: str | Path) -> str:
             return "colmap"
         if path.name == "pair.txt":
             return detect_layout(path.parent)
+        if find_camera_file(path) is not None:
+            return "idr"
+        if path.name == POSES_FILE:
+            return "llff"
         raise InputError(f"cannot tell the scene layout from this file; give a folder or file holding {_LOOKED_FOR}",
                          path)
     if is_dtu_root(path):
@@ -96,6 +105,10 @@ def detect_layout(path: str | Path) -> str:
         pass
     if find_par_file(path) is not None:
         return "middlebury"
+    if find_camera_file(path) is not None:
+        return "idr"
+    if (path / POSES_FILE).is_file():
+        return "llff"
     _refuse_incomplete(path)
     if list_images(path) or list_images(path / "images"):
         return "images"
@@ -145,6 +158,10 @@ def load_scene(
         )
     if layout == "middlebury":
         scene = load_middlebury_scene(path, num_neighbors=k)
+    elif layout == "idr":
+        scene = load_idr_scene(path, num_neighbors=k)
+    elif layout == "llff":
+        scene = load_llff_scene(path, num_neighbors=k)
     elif layout == "colmap":
         target = path.parent if path.is_file() else path
         scene = load_colmap_scene(target, image_dir=image_dir, num_neighbors=k)
