@@ -85,6 +85,21 @@ def test_a_source_cap_samples_all_of_its_photos(tmp_path):
     assert len({e["photo"] for e in manifest["textures"]}) >= 3  # visited in random order, not the first photos
 
 
+def test_a_source_file_caps_its_own_photos(tmp_path):
+    photos = _folder(tmp_path, n=6)
+    other = photos / "set_b"
+    other.mkdir()
+    for k in range(3):
+        Image.fromarray(_photo(100 + k)).save(other / f"q{k}.png")
+    (other / "source.json").write_text(json.dumps({"licence": "CC-BY-4.0", "source": "one object", "max_textures": 3}))
+    manifest = read_manifest(build_texture_library(CONFIG, photos, tmp_path / "lib", progress=False))
+    by_source = [e["source"] for e in manifest["textures"]]
+    assert by_source.count("one object") == 3 and by_source.count("test photos") > 3
+    (other / "source.json").write_text(json.dumps({"licence": "CC-BY-4.0", "source": "x", "max_textures": 0}))
+    with pytest.raises(InputError, match="max_textures"):
+        build_texture_library(CONFIG, photos, tmp_path / "lib2", progress=False)
+
+
 def test_library_feeds_the_training_scenes(tmp_path):
     from mvsformerpp.synth import random_scene, render_view
     from mvsformerpp.synth.photos import texture_source

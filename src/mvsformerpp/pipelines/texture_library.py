@@ -1,12 +1,14 @@
 """``textures``: build a texture library (:mod:`mvsformerpp.synth.texture_library`) from a folder of photographs.
 
 Every photo (any depth below the folder) needs a licence: a ``source.json`` in its folder or a folder above
-it, ``{"licence": "CC0-1.0", "source": "...", "url": "...", "author": "..."}``, names where the photos in
-that tree come from. Only licences that allow training and shipping the weights are accepted
-(:data:`LICENCES`). From each photo the library takes random square crops at several scales (the photo as
-it is, then halved, quartered, ...: texels of real materials at the full resolution and coarser), drops
-crops with almost no contrast (blank sky, black borders) and near-duplicates (the same view twice, a
-repeated tile), and records per crop its photo, source, licence, box in the photo and colour statistics.
+it, ``{"licence": "CC0-1.0", "source": "...", "url": "...", "author": "...", "max_textures": N}``, names
+where the photos in that tree come from (``max_textures``, optional: the most textures they give, as
+:attr:`LibraryConfig.max_per_source` for that source alone). Only licences that allow training and
+shipping the weights are accepted (:data:`LICENCES`). From each photo the library takes random square
+crops at several scales (the photo as it is, then halved, quartered, ...: texels of real materials at the
+full resolution and coarser), drops crops with almost no contrast (blank sky, black borders) and
+near-duplicates (the same view twice, a repeated tile), and records per crop its photo, source, licence,
+box in the photo and colour statistics.
 """
 
 from __future__ import annotations
@@ -72,6 +74,9 @@ def _source_of(photo: Path, root: Path, cache: dict) -> dict:
                         or not isinstance(info.get("source"), str):
                     raise InputError('a source file needs {"licence": "...", "source": "..."} (url and author '
                                      "optional)", path)
+                cap = info.get("max_textures")
+                if cap is not None and (isinstance(cap, bool) or not isinstance(cap, int) or cap < 1):
+                    raise InputError(f"max_textures must be a whole number >= 1, got {cap!r}", path)
                 if not licence_allowed(info["licence"]):
                     raise InputError(f"licence {info['licence']!r} does not allow training and shipping weights; "
                                      f"accepted: {', '.join(LICENCES)} or CC-BY-<version>", path)
@@ -167,7 +172,7 @@ def build_texture_library(config: LibraryConfig, photos_dir: str | Path, out: st
             photos_of[info["source"]] = photos_of.get(info["source"], 0) + 1
         for p, info in tqdm(usable, desc="textures", unit="photo", disable=not progress):
             crops = list(_crops(read_image(p), config, rng))
-            cap = config.max_per_source
+            cap = info.get("max_textures", config.max_per_source)
             share = len(crops) if cap is None else -(-cap // photos_of[info["source"]])
             taken = 0
             for k in rng.permutation(len(crops)):
