@@ -33,6 +33,15 @@ def build_datasets(config: TrainConfig) -> tuple[MVSDataset, MVSDataset]:
                                  resize_crop=train_tf, photometric=photometric, **syn, **common)
         val = SyntheticDataset(config.synthetic_val_scenes, scene_seed=config.seed + SYNTHETIC_VAL_OFFSET,
                                seed=config.seed + 1, resize_crop=val_tf, **syn, **common)
+        if config.real_scenes:
+            from mvsformerpp.data.real import RealSceneDataset, load_real_scenes
+
+            # whole photos (resized to the batch's size times 1-1.2, then cropped): the views of a pair overlap
+            real_tf = ResizeCrop(None, tuple(config.resize_range), 0.0, require_valid=False)
+            real = RealSceneDataset(load_real_scenes(config.real_scenes), num_views=config.num_views,
+                                    labels=config.real_labels, self_supervised=config.self_supervised_weight > 0,
+                                    resize_crop=real_tf, photometric=photometric, seed=config.seed + 2, **common)
+            train = BalancedMix([train, real])
         return train, val
     scene_kw = dict(num_views=config.num_views, **common)
     depth_kw = dict(num_depth=config.num_depth, interval_scale=config.interval_scale)

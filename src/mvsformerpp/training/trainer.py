@@ -37,7 +37,7 @@ from mvsformerpp.training.checkpoints import (
     save_training_checkpoint,
     set_rng_state,
 )
-from mvsformerpp.training.config import TrainConfig
+from mvsformerpp.training.config import REAL_BLOCK, TrainConfig
 from mvsformerpp.training.logging import MetricsLog
 from mvsformerpp.training.schedule import build_scheduler
 from mvsformerpp.utils.precision import autocast
@@ -124,6 +124,8 @@ def shuffle_block(config: TrainConfig) -> int:
     ``synthetic_scene_batches`` (rendered once for all of them), else 1."""
     if config.recipe == "synthetic" and config.synthetic_scene_batches:
         return config.synthetic_views_per_scene
+    if config.real_scenes:
+        return REAL_BLOCK
     return 1
 
 
@@ -357,6 +359,11 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
                     extra["stages"] = config.train_stages
                 out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"], **extra)
             loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
+            if config.self_supervised_weight > 0:
+                from mvsformerpp.training.self_supervision import self_supervised_loss
+
+                stages = tuple(f"stage{s}" for s in range(1, config.train_stages + 1))
+                loss = loss + config.self_supervised_weight * self_supervised_loss(out, chunk, stages)[0]
             share = (b - a) / per_rank
             finite = bool(torch.isfinite(loss))
             bad = bad or not finite
