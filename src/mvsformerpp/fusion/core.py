@@ -101,6 +101,13 @@ def _fuse_reprojection(ref, srcs, cfg: FusionConfig, idx):
     return idx[keep], fused[keep]
 
 
+def consistent_pixels(ref: FusionView, srcs: list[FusionView], cfg: FusionConfig) -> torch.Tensor:
+    """Flat indices of the reference pixels with depth that the ``normal`` or ``dynamic`` filter of ``cfg`` keeps
+    against ``srcs`` (what fusion would fuse; the teacher labels of ``tools/teacher_labels.py``)."""
+    idx = torch.nonzero((ref.depth.reshape(-1) > 0) & (ref.confidence.reshape(-1) > cfg.conf_threshold)).squeeze(1)
+    return _fuse_reprojection(ref, srcs, cfg, idx)[0]
+
+
 def _fuse_gipuma_ref(views, r, candidates, cfg: FusionConfig, idx, used):
     """fusibile's rule for reference pixels ``idx`` of view r; marks the pixels it consumes in ``used``."""
     ref = views[r]
