@@ -107,7 +107,8 @@ def main() -> None:
     peers = {k: load_peer(k, c) for k, c in (("itermvs", args.itermvs), ("patchmatchnet", args.patchmatchnet)) if c}
     with tempfile.TemporaryDirectory() as tmp:
         out = Path(args.out or tmp)
-        ours = describe_weights(config)
+        ours = f"mvsformerpp lite ({Path(args.checkpoint).name if args.checkpoint else 'shipped weights'})"
+        print(describe_weights(config))
         results: dict = {ours: {}, **{k: {} for k in peers}}
         pair_dir = ROOT / "tests" / "data" / "dtu_pair"
         results[ours]["dtu_pair"] = dtu_pair_quality(pair_dir, out / "dtu_pair", config)
