@@ -172,3 +172,9 @@ def test_textures_command(tmp_path, capsys):
     assert main(["textures", str(tmp_path / "nowhere"), "-o", str(tmp_path / "lib2")]) == 2
     assert "photo folder not found" in capsys.readouterr().err
     assert main(["textures", str(photos), "-o", str(photos / "lib")]) == 2  # never inside the input
+    capsys.readouterr()
+    assert main(["synth", str(tmp_path / "s"), "--style", "train", "--textures", str(tmp_path / "lib"), "--views",
+                 "2", "--height", "32", "--width", "32"]) == 0
+    assert len(list((tmp_path / "s" / "images").iterdir())) == 2
+    assert main(["synth", str(tmp_path / "s2"), "--textures", str(tmp_path / "lib")]) == 2
+    assert "--textures needs --style train" in capsys.readouterr().err
