@@ -5,7 +5,7 @@ A :class:`RealSceneDataset` reads scenes in any layout :func:`~mvsformerpp.io.de
 its reference and sample ``2m + 1`` the best neighbour of ``i`` (both with ``pair_id`` ``m``), so a batch that
 keeps the pair together can ask their depths to agree
 (:func:`~mvsformerpp.training.self_supervision.cross_view_error`). Source views are drawn from the
-reference's neighbours as :class:`~mvsformerpp.data.scenes.SceneDataset` draws them; the depth range is the
+reference's neighbours (:func:`~mvsformerpp.data.scenes.draw_sources`); the depth range is the
 scene's own (LLFF bounds, IDR sphere, sparse points).
 
 ``labels``: a folder of teacher depth maps, ``LABELS/<scene>/<view>.pfm`` (0 = no label; written by
@@ -21,6 +21,7 @@ from pathlib import Path
 import numpy as np
 
 from mvsformerpp.data.base import MVSDataset, ViewData, ViewSet
+from mvsformerpp.data.scenes import draw_sources
 from mvsformerpp.errors import InputError
 from mvsformerpp.io.images import read_image
 from mvsformerpp.io.pfm import read_pfm
@@ -92,9 +93,7 @@ class RealSceneDataset(MVSDataset):
     def load_views(self, index: int, rng: np.random.Generator, height: int, width: int) -> ViewSet:
         s, ref = self.samples[index]
         scene = self.scenes[s][1]
-        cands = [j for j in scene.views[ref].neighbors if j != ref][: self.num_candidates]
-        picked = [cands[k] for k in rng.permutation(len(cands))[: self.num_views - 1]]
-        picked += [picked[0]] * (self.num_views - 1 - len(picked))
+        picked = draw_sources(scene, ref, self.num_views, self.num_candidates, rng)
         views = []
         for k, i in enumerate([ref] + picked):
             v = scene.views[i]
