@@ -249,10 +249,15 @@ def dtu_pair_quality(pair_dir: str | Path, out_dir: str | Path, config: Reconstr
     (scene / "pair.txt").write_text("2\n0\n1 1 1.0\n1\n1 0 1.0\n")
     cfg = dataclasses.replace(config, num_views=2, max_size=640, fusion="none")
     reconstruct(scene, out / "recon", cfg, quiet=quiet)
+    views = open_run(out / "recon").views
+    return dtu_pair_metrics(pair_dir, [views[i].read_depth() for i in (0, 1)])
+
+
+def dtu_pair_metrics(pair_dir: str | Path, estimates: list[np.ndarray]) -> dict:
+    """The DTU pair's measures of the two views' depth maps at 640x512 (see :func:`dtu_pair_quality`)."""
     rows = {}
-    for i in (0, 1):
-        gt = read_pfm(pair_dir / f"depth_map_{i:04d}.pfm")
-        est = open_run(out / "recon").views[i].read_depth()
+    for i, est in enumerate(estimates):
+        gt = read_pfm(Path(pair_dir) / f"depth_map_{i:04d}.pfm")
         h, w = gt.shape
         near_gt = np.kron(gt > 0, np.ones((4, 4), bool))[: est.shape[0], : est.shape[1]]
         grid, grid32 = grid_artifact_ratio(est, 8, near_gt), grid_artifact_ratio(est, 32, near_gt)

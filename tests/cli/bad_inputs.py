@@ -13,6 +13,7 @@ from __future__ import annotations
 import contextlib
 import errno
 import io
+import json
 import os
 import shutil
 import sys
@@ -444,6 +445,42 @@ def into_scene(command: str, *where: str) -> Callable[[Path], list[str]]:
     return build
 
 
+def _photo_folder(d: Path, name: str = "photos", size: int = 96, licence: str | None = "CC0-1.0",
+                  junk: bool = False) -> Path:
+    """A folder of two textured photos (``size`` px) with a source.json (``licence`` None: without one)."""
+    from PIL import Image
+
+    folder = d / name
+    folder.mkdir()
+    rng = np.random.default_rng(0)
+    for k in range(2):
+        Image.fromarray(rng.integers(0, 256, (size, size, 3), dtype=np.uint8)).save(folder / f"p{k}.png")
+    if junk:
+        (folder / "p1.png").write_bytes(b"not an image")
+    if licence is not None:
+        (folder / "source.json").write_text(json.dumps({"licence": licence, "source": "test photos"}))
+    return folder
+
+
+def _llff(d: Path, drop_photo: bool = False) -> Path:
+    """An LLFF capture of 3 views of 64x48 (poses_bounds.npy + images/); ``drop_photo``: one photo missing."""
+    from PIL import Image
+
+    folder = d / "capture"
+    (folder / "images").mkdir(parents=True)
+    rows = []
+    for i in range(3):
+        m = np.zeros((3, 5))
+        m[:, :3] = [[0, 1, 0], [1, 0, 0], [0, 0, -1]]  # (down, right, back) of a camera looking along +z
+        m[:, 3] = [0.1 * i, 0, 0]
+        m[:, 4] = [48, 64, 60]
+        rows.append(np.concatenate([m.ravel(), [1.0, 5.0]]))
+        if not (drop_photo and i == 2):
+            Image.new("RGB", (64, 48), (90, 90, 90)).save(folder / "images" / f"{i:03d}.png")
+    np.save(folder / "poses_bounds.npy", np.array(rows))
+    return folder
+
+
 def train_set(*values: str) -> Callable[[Path], list[str]]:
     """A case's command: ``train synthetic -o DIR/run --set VALUE ...``."""
     return lambda d: ["train", "synthetic", "-o", str(d / "run"), *[a for v in values for a in ("--set", v)]]
@@ -696,6 +733,28 @@ CASES: list[Case] = [
          patch=lambda mp: _full_disk(mp, "mvsformerpp.utils.atomic", "os.fsync")),
     Case("recon-par-short-line", "a Middlebury par line with 20 numbers instead of 21", _short_par_line,
          "21 numbers"),
+    Case("recon-llff-photo-missing", "an LLFF capture whose poses_bounds.npy holds more cameras than images/ photos",
+         lambda d: recon(d, src=_llff(d, drop_photo=True)), "do not fit the images"),
+    # textures and real photos in training
+    Case("textures-empty-folder", "textures on an empty folder",
+         lambda d: ["textures", str((d / "e").mkdir() or d / "e"), "-o", str(d / "lib")], "no photos"),
+    Case("textures-unreadable-photo", "textures on a folder holding a file that is not an image",
+         lambda d: ["textures", str(_photo_folder(d, junk=True)), "-o", str(d / "lib")], "not a readable image"),
+    Case("textures-too-small", "textures on photos of 20x20 pixels",
+         lambda d: ["textures", str(_photo_folder(d, size=20)), "-o", str(d / "lib")], "too small to crop"),
+    Case("textures-no-licence", "textures on photos without a source.json",
+         lambda d: ["textures", str(_photo_folder(d, licence=None)), "-o", str(d / "lib")], "no source.json"),
+    Case("textures-non-commercial", "textures on photos under CC-BY-NC-4.0",
+         lambda d: ["textures", str(_photo_folder(d, licence="CC-BY-NC-4.0")), "-o", str(d / "lib")],
+         "does not allow"),
+    Case("train-textures-missing", "train with a texture library that does not exist",
+         lambda d: train_set(f"synthetic_options={{style: train, textures: {d / 'nowhere'}}}")(d),
+         "texture library not found"),
+    Case("train-real-photo-missing", "train with a real scene whose cameras outnumber its photos",
+         lambda d: train_set(f"real_scenes=[{_llff(d, drop_photo=True)}]", "self_supervised_weight=1")(d),
+         "do not fit the images"),
+    Case("train-real-no-loss", "train with real scenes but neither teacher labels nor self-supervision",
+         lambda d: train_set(f"real_scenes=[{_llff(d)}]")(d), "real_labels"),
     Case("info-missing", "info on a path that does not exist", lambda d: ["info", str(d / "nowhere")],
          "no such file"),
     Case("info-depth-range-reversed", "info --depth-range 5 1",

@@ -19,7 +19,7 @@ from mvsformerpp.errors import MVSFormerError
 
 # Subcommand modules, in the order `--help` lists them.
 COMMANDS: tuple[str, ...] = ("demo", "reconstruct", "fuse", "mesh", "export", "export_onnx", "report", "view",
-                             "evaluate", "info", "synth", "train")
+                             "evaluate", "info", "synth", "textures", "train")
 
 
 # Operating-system errors the user fixes (space, permissions, read-only media, a path under a file).

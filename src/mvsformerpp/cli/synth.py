@@ -43,6 +43,9 @@ def register(sub: argparse._SubParsersAction) -> None:
     p.add_argument("--plain-walls", type=float, default=0.0, metavar="P",
                    help="train style: probability in [0, 1] that each wall and ceiling of a room or table is painted "
                    "one light colour, with no texture to match (most real rooms; default 0: as drawn)")
+    p.add_argument("--textures", metavar="LIBRARY",
+                   help="train style: draw the photo textures from this texture library (built by mvsformerpp "
+                   "textures; default: scikit-image's sample photographs)")
     p.set_defaults(func=run, on_memory_error="lower --height, --width or --views")
 
 
@@ -50,6 +53,7 @@ def run(args: argparse.Namespace) -> int:
     from mvsformerpp.errors import InputError
     from mvsformerpp.synth import generate_dataset, generate_scene
     from mvsformerpp.synth.scenes import MAX_SEED
+    from mvsformerpp.synth.texture_library import read_manifest
 
     if args.scenes >= 1 and not 0 <= args.seed <= MAX_SEED - 1000 * (args.scenes - 1):
         raise InputError(f"--seed must be 0 .. {MAX_SEED - 1000 * (args.scenes - 1)} with --scenes {args.scenes} "
@@ -79,9 +83,13 @@ def run(args: argparse.Namespace) -> int:
     if not 0.0 <= args.plain_walls <= 1.0 or (args.plain_walls and args.style != "train"):
         raise InputError(f"--plain-walls needs --style train and a probability in [0, 1], got {args.plain_walls:g} "
                          f"with --style {args.style}")
+    if args.textures is not None:
+        if args.style != "train":
+            raise InputError(f"--textures needs --style train, got --style {args.style}")
+        read_manifest(args.textures)
     kw = dict(num_views=args.views, height=args.height, width=args.width, num_objects=args.objects,
               style=args.style, sensor_width=args.sensor_width, detail=args.detail, layout=args.layout,
-              plain_walls=args.plain_walls)
+              plain_walls=args.plain_walls, textures=args.textures)
     if args.scenes == 1:
         out = generate_scene(args.output, seed=args.seed, **kw)
     else:

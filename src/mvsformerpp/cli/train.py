@@ -9,7 +9,8 @@ from mvsformerpp.training.config import TrainConfig
 from mvsformerpp.utils.config_flags import add_config_flags
 
 FLAGS = ("data_root", "train_list", "val_list", "preset", "init_checkpoint", "max_steps", "epochs", "batch_size",
-         "height", "width", "num_views", "seed", "save_every", "device", "precision")
+         "height", "width", "num_views", "seed", "save_every", "device", "precision", "real_scenes", "real_labels",
+         "self_supervised_weight")
 """The :class:`~mvsformerpp.training.config.TrainConfig` fields with a flag of their own (any field: ``--set``)."""
 
 

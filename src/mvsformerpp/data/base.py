@@ -16,6 +16,7 @@ reproducible and resumable regardless of worker processes.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -49,6 +50,11 @@ class ViewSet:
     views: list[ViewData]
     depth_min: float
     depth_max: float
+    self_supervised: bool = False
+    """The sample is scored by photometric consistency (:mod:`mvsformerpp.training.self_supervision`), not (only)
+    by its depth."""
+    pair_id: int = -1
+    """Samples with the same id >= 0 are references of one scene whose depths should agree (-1: none)."""
 
 
 @dataclass(frozen=True)
@@ -99,8 +105,8 @@ class MVSDataset(Dataset):
         vs = self.load_views(key.index, rng, key.height, key.width)
         if self.resize_crop is None:
             return vs
-        return ViewSet(self.resize_crop(vs.views, key.height, key.width, rng, self.describe(key.index)),
-                       vs.depth_min, vs.depth_max)
+        return dataclasses.replace(vs, views=self.resize_crop(vs.views, key.height, key.width, rng,
+                                                              self.describe(key.index)))
 
     def __getitem__(self, key: SampleKey | int) -> dict:
         if not isinstance(key, SampleKey):
@@ -118,8 +124,11 @@ class MVSDataset(Dataset):
             imgs = self.photometric(imgs, rng)
         ref = views[0]
         projs = stage_projections(np.stack([v.E for v in views]), np.stack([v.K for v in views]))
-        depth = ref.depth.astype(np.float32)
-        mask = ref.mask & (depth > 0)
+        if ref.depth is None:  # a photo without depth (self-supervised): nothing for the cross-entropy
+            depth, mask = np.zeros((key.height, key.width), np.float32), np.zeros((key.height, key.width), bool)
+        else:
+            depth = ref.depth.astype(np.float32)
+            mask = ref.mask & (depth > 0)
         depth_gt, masks = {}, {}
         for name, s in STAGE_SCALES.items():
             step = round(1 / s)
@@ -131,4 +140,6 @@ class MVSDataset(Dataset):
             "depth_values": torch.linspace(vs.depth_min, vs.depth_max, self.num_depth, dtype=torch.float32),
             "depth_gt": depth_gt,
             "mask": masks,
+            "self_supervised": torch.tensor(float(vs.self_supervised)),
+            "pair_id": torch.tensor(int(vs.pair_id)),
         }

@@ -34,6 +34,14 @@ class SceneEntry:
     """Photo of view i (None: the scene's own ``image_path``)."""
 
 
+def draw_sources(scene: Scene, ref: int, num_views: int, num_candidates: int, rng: np.random.Generator) -> list[int]:
+    """``num_views - 1`` source views drawn at random from the reference's first ``num_candidates`` neighbours
+    (repeated when there are fewer), as the reference's training loaders draw them."""
+    cands = [j for j in scene.views[ref].neighbors if j != ref][:num_candidates]
+    picked = [cands[k] for k in rng.permutation(len(cands))[: num_views - 1]]
+    return picked + [picked[0]] * (num_views - 1 - len(picked))
+
+
 def read_mask(path: Path) -> np.ndarray:
     """A mask image as bool [H, W]: value > 10 (the reference's DTU ``depth_visual`` rule)."""
     from PIL import Image
@@ -76,9 +84,7 @@ class SceneDataset(MVSDataset):
         e, ref = self.samples[index]
         entry = self.entries[e]
         scene = entry.scene
-        cands = [j for j in scene.views[ref].neighbors if j != ref][: self.num_candidates]
-        picked = [cands[k] for k in rng.permutation(len(cands))[: self.num_views - 1]]
-        picked += [picked[0]] * (self.num_views - 1 - len(picked))
+        picked = draw_sources(scene, ref, self.num_views, self.num_candidates, rng)
         views = []
         for k, i in enumerate([ref] + picked):
             v = scene.views[i]

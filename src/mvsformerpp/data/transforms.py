@@ -58,6 +58,9 @@ class ResizeCrop:
     """Crops drawn for the reference view before the sample is declared without valid depth."""
     center: bool = False
     """Centre crops instead of random ones (validation)."""
+    require_valid: bool = True
+    """A reference crop must hold valid depth (else the sample is an error); False keeps the last crop drawn
+    (teacher labels that cover part of a photo)."""
 
     def scale(self, h0: int, w0: int, height: int, width: int, rng: np.random.Generator) -> float:
         bh, bw = self.base_size or (h0, w0)
@@ -77,6 +80,8 @@ class ResizeCrop:
             m = mask[y0:y0 + height, x0:x0 + width] & (depth[y0:y0 + height, x0:x0 + width] > 0)
             if m[::8, ::8].any():
                 return y0, x0
+        if not self.require_valid:
+            return y0, x0
         raise InputError(f"{what}: no crop of the reference view has valid ground-truth depth "
                          f"(tried {self.max_tries}); check its depth map and mask")
 

@@ -115,18 +115,34 @@ class ReprojectionKernel(FusionKernel):
         the source depths averaged into each."""
         raise NotImplementedError
 
-    def fuse(self, r: int, sources: list[int], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+    def kept(self, r: int, sources: list[int], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        """(flat indices [n] of the reference pixels ``idx`` of view r that the ``sources`` confirm, their fused
+        depths [n]): the reference depth averaged with the consistent sources' reprojected depths."""
         ref, srcs = self.views[r], [self.views[j] for j in sources]
-        H, W = ref.depth.shape
-        u, v = pixel_centres(H, W, idx)
+        u, v = pixel_centres(*ref.depth.shape, idx)
         d = ref.depth.reshape(-1)[idx]
         src_depths = [confident_depth(s, self.cfg) if self.filter_sources else s.depth for s in srcs]
         err, dr, valid = reprojection_errors(ref, srcs, src_depths, u, v, d)
         keep, consistent = self.consistent(err, dr, d, valid)
         fused = (d + (dr * consistent).sum(0)) / (1 + consistent.sum(0))
-        kept, depth = idx[keep], fused[keep]
-        u, v = pixel_centres(H, W, kept)
+        return idx[keep], fused[keep]
+
+    def fuse(self, r: int, sources: list[int], idx: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        ref = self.views[r]
+        kept, depth = self.kept(r, sources, idx)
+        u, v = pixel_centres(*ref.depth.shape, kept)
         return backproject(ref.K, ref.E, u, v, depth), ref.image.reshape(-1, 3)[kept].float()
+
+
+def consistent_pixels(ref: FusionView, srcs: list[FusionView], cfg: FusionConfig) -> torch.Tensor:
+    """Flat indices of the reference pixels with depth that the method of ``cfg`` (one that checks each pixel
+    by reprojection, a :class:`ReprojectionKernel`: ``normal``, ``dynamic``) keeps against ``srcs``: what
+    fusion would fuse (the teacher labels of ``tools/teacher_labels.py``)."""
+    kernel = get_method(cfg.method).kernel()([ref, *srcs], cfg)
+    if not isinstance(kernel, ReprojectionKernel):
+        raise InputError(f"fusion method {cfg.method} does not check pixels by reprojection; use normal or dynamic")
+    idx = torch.nonzero((ref.depth.reshape(-1) > 0) & (ref.confidence.reshape(-1) > cfg.conf_threshold)).squeeze(1)
+    return kernel.kept(0, list(range(1, len(srcs) + 1)), idx)[0]
 
 
 def iter_fused_points(views: Sequence[FusionView], neighbors: list[list[int]], cfg: FusionConfig,

@@ -8,6 +8,8 @@ Layouts (names returned by :func:`detect_layout`):
 ``blendedmvs``  ``blended_images/`` + ``cams/`` (also nested ``PID/PID/PID``)
 ``colmap``      COLMAP project (``sparse/0``, ``sparse``, ``dense/sparse`` or the model files directly)
 ``middlebury``  a ``*_par.txt`` file or a folder holding one
+``idr``         IDR / NeuS ``cameras_sphere.npz`` (or ``cameras.npz``) + ``image/`` (or ``images/``), or that file
+``llff``        LLFF ``poses_bounds.npy`` + ``images/``, or that file
 ``images``      photos without cameras: not loadable here (structure from motion is needed first)
 
 Each is a :class:`Layout` record of :data:`TABLE`: its name, its words in the "looked for" message, the
@@ -30,7 +32,9 @@ from mvsformerpp.io.benchmarks import (
 )
 from mvsformerpp.io.colmap import MODEL_SUBDIRS, find_colmap_model, load_colmap_scene
 from mvsformerpp.io.colmap_model import model_extension
+from mvsformerpp.io.idr import is_idr_scene, load_idr_scene
 from mvsformerpp.io.images import list_images
+from mvsformerpp.io.llff import is_llff_scene, load_llff_scene
 from mvsformerpp.io.middlebury import find_par_file, load_middlebury_scene
 from mvsformerpp.io.mvsnet import DEFAULT_NUM_DEPTH, DepthFormat, cam_files, load_mvsnet_scene
 from mvsformerpp.io.scene import Scene
@@ -156,6 +160,10 @@ TABLE: tuple[Layout, ...] = (
                                                       num_neighbors=o.num_neighbors)),
     Layout("middlebury", "a Middlebury *_par.txt file or a folder holding one", _is_middlebury,
            lambda p, o: load_middlebury_scene(p, num_neighbors=o.num_neighbors)),
+    Layout("idr", "an IDR/NeuS scene (cameras_sphere.npz + image/)", is_idr_scene,
+           lambda p, o: load_idr_scene(p, num_neighbors=o.num_neighbors)),
+    Layout("llff", "an LLFF capture (poses_bounds.npy + images/)", is_llff_scene,
+           lambda p, o: load_llff_scene(p, num_neighbors=o.num_neighbors)),
     Layout("images", "", _is_photo_folder, _refuse_photos),
 )
 """Every layout, in the order :func:`detect_layout` tries them (the first whose test passes wins; the

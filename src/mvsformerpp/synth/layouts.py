@@ -402,13 +402,15 @@ def _sky(extra: np.random.Generator) -> Sky:
 
 def training_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
                    num_objects: int | None = None, layout: str | None = None,
-                   sensor_width: tuple[float, float] | None = None, plain_walls: float = 0.0) -> SynthScene:
+                   sensor_width: tuple[float, float] | None = None, plain_walls: float = 0.0,
+                   textures: str | None = None) -> SynthScene:
     """A random scene of one of :data:`LAYOUTS` (``layout`` None = drawn from the seed).
 
     ``sensor_width`` (low, high): the views are ``width`` x ``height`` windows of photos whose width is
     drawn from this range (see :func:`_cut_windows`); None: each view is a whole photo of that size.
     ``plain_walls``: probability that each wall and ceiling of a ``room`` or ``table`` layout is painted
     one light colour (:func:`_paint`); 0 leaves every scene as it was.
+    ``textures``: a texture library folder for the photo surfaces (None: :func:`texture_set`'s default).
     """
     if not 0.0 <= plain_walls <= 1.0:
         raise ValueError(f"plain_walls is a probability in [0, 1], got {plain_walls}")
@@ -439,7 +441,7 @@ def training_scene(seed: int, num_views: int = 7, height: int = 256, width: int 
                        light=light / np.linalg.norm(light),
                        ambient=rng.uniform(0.1, 0.3) if plaster else rng.uniform(0.25, 0.6),
                        background=rng.uniform(0, 0.06, 3) if void else rng.uniform(0, 1, 3),
-                       supersample=1, textures=texture_set()[1],  # the lens blur smooths edges: 4x faster
+                       supersample=1, textures=texture_set(textures)[1],  # the lens blur smooths edges: 4x faster
                        sky=_sky(extra) if kind == "facade" and extra.random() < 0.8 else None)
     _cut_windows(rng, scene, sensor)
     return scene

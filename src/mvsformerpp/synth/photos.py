@@ -4,7 +4,9 @@ scikit-image (the ``train`` extra) ships a few dozen sample photographs in ``ski
 coffee, brick, grass, gravel, a cat, a rocket, ...). They are read straight from that folder with
 Pillow: nothing is imported from scikit-image and nothing is downloaded. Without scikit-image the
 textures are procedural 2-D images instead (coloured fractal noise, cells, stripes), so the generator
-works everywhere; :func:`texture_source` says which set is in use.
+works everywhere; :func:`texture_source` says which set is in use. A texture library of real photographs
+(:mod:`mvsformerpp.synth.texture_library`) replaces both where a recipe names one
+(``synthetic_options: {textures: LIBRARY}``).
 
 A texture is a mip pyramid of uint8 RGB images (each level half the previous), sampled with mirrored
 repetition (no seams) and bilinear interpolation at the level whose texel matches the pixel footprint.
@@ -13,20 +15,21 @@ repetition (no seams) and bilinear interpolation at the level whose texel matche
 from __future__ import annotations
 
 import importlib.util
+from collections.abc import Sequence
 from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
 from PIL import Image
 
+from mvsformerpp.synth.mipmaps import pyramid
+from mvsformerpp.synth.texture_library import TextureLibrary
+
 # Photographs of ordinary scenes and materials in scikit-image's wheel (no charts, faces, or scans).
 SKIMAGE_PHOTOS = ("astronaut.png", "brick.png", "camera.png", "chelsea.png", "coffee.png", "grass.png",
                   "gravel.png", "rocket.jpg", "motorcycle_left.png", "motorcycle_right.png", "coins.png",
                   "moon.png", "page.png", "text.png", "color.png", "hubble_deep_field.jpg", "retina.jpg",
                   "ihc.png", "cell.png", "clock_motion.png", "logo.png", "horse.png")
-MAX_SIDE = 384
-"""Longest side of a texture's finest level (bigger photos are reduced once, at load)."""
-LEVELS = 5
 
 
 def skimage_data_dir() -> Path | None:
@@ -36,21 +39,6 @@ def skimage_data_dir() -> Path | None:
         return None
     folder = Path(spec.origin).parent / "data"
     return folder if folder.is_dir() else None
-
-
-def _pyramid(img: np.ndarray) -> list[np.ndarray]:
-    pil = Image.fromarray(img)
-    if max(pil.size) > MAX_SIDE:
-        s = MAX_SIDE / max(pil.size)
-        pil = pil.resize((max(8, round(pil.size[0] * s)), max(8, round(pil.size[1] * s))), Image.BOX)
-    levels = [np.asarray(pil, dtype=np.uint8)]
-    for _ in range(LEVELS - 1):
-        w, h = pil.size
-        if min(w, h) < 16:
-            break
-        pil = pil.resize((w // 2, h // 2), Image.BOX)
-        levels.append(np.asarray(pil, dtype=np.uint8))
-    return levels
 
 
 def procedural_images(count: int = 16, size: int = 256, seed: int = 1_000_003) -> list[np.ndarray]:
@@ -82,12 +70,17 @@ def procedural_images(count: int = 16, size: int = 256, seed: int = 1_000_003) -
     return out
 
 
-@lru_cache(maxsize=1)
-def texture_set() -> tuple[str, tuple[list[np.ndarray], ...]]:
-    """(source name, mip pyramids): the scikit-image photographs when available, else procedural images.
+@lru_cache(maxsize=2)
+def texture_set(library: str | None = None) -> tuple[str, Sequence[list[np.ndarray]]]:
+    """(source name, mip pyramids): the texture library at ``library`` when given, else the scikit-image
+    photographs when available, else procedural images.
 
-    Loaded once per process on first use (never at import).
+    Loaded once per process on first use (never at import); a library's textures are decoded when a scene
+    first shows them (:class:`~mvsformerpp.synth.texture_library.TextureLibrary`).
     """
+    if library is not None:
+        lib = TextureLibrary(library)
+        return lib.describe(), lib
     folder = skimage_data_dir()
     images = []
     if folder is not None:
@@ -99,18 +92,19 @@ def texture_set() -> tuple[str, tuple[list[np.ndarray], ...]]:
     source = "scikit-image sample photographs" if len(images) >= 5 else "procedural images"
     if source == "procedural images":
         images = procedural_images()
-    return source, tuple(_pyramid(im) for im in images)
+    return source, tuple(pyramid(im) for im in images)
 
 
 @lru_cache(maxsize=1)
 def heldout_texture_set() -> tuple[list[np.ndarray], ...]:
     """Procedural images from seeds the training set never uses (the held-out style's textures)."""
-    return tuple(_pyramid(im) for im in procedural_images(seed=7_000_001))
+    return tuple(pyramid(im) for im in procedural_images(seed=7_000_001))
 
 
-def texture_source() -> str:
-    """Which texture set the generator uses here: scikit-image's photographs or procedural images."""
-    return texture_set()[0]
+def texture_source(library: str | None = None) -> str:
+    """Which texture set the generator uses here: a texture library, scikit-image's photographs or procedural
+    images."""
+    return texture_set(library)[0]
 
 
 def sample_texture(levels: list[np.ndarray], uv: np.ndarray, footprint: np.ndarray) -> np.ndarray:

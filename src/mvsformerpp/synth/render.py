@@ -13,7 +13,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from mvsformerpp.synth.photos import LEVELS, sample_texture
+from mvsformerpp.synth.mipmaps import LEVELS
+from mvsformerpp.synth.photos import sample_texture
 from mvsformerpp.synth.shapes import may_hit
 from mvsformerpp.synth.textures import albedo, fractal_noise
 

@@ -17,7 +17,7 @@ MAX_SEED = 2**31 - 1
 def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 320,
                  num_objects: int | None = None, arc_degrees: float = 50.0, style: str = "classic",
                  sensor_width: tuple[float, float] | None = None, detail: float = 0.0,
-                 layout: str | None = None, plain_walls: float = 0.0) -> SynthScene:
+                 layout: str | None = None, plain_walls: float = 0.0, textures: str | None = None) -> SynthScene:
     """A random scene, deterministic for (seed, style, sizes).
 
     ``classic``: several objects of different shapes, sizes, depths and textures on a ground plane
@@ -33,9 +33,14 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
     facade) instead of the one the seed draws.
     ``plain_walls`` (``train`` only): probability that each wall and ceiling of a room or table is painted
     one light colour (large surfaces with no texture to match, as in most real rooms; 0: as drawn).
+    ``textures`` (``train`` only): a texture library folder (:mod:`mvsformerpp.synth.texture_library`) whose
+    crops of real photographs the photo surfaces show (None: scikit-image's sample photographs).
     """
     if layout is not None and style != "train":
         raise ValueError(f"layout {layout!r} needs style 'train' (the held-out and classic styles have one layout)")
+    if textures is not None and style != "train":
+        raise ValueError(f"textures needs style 'train' (the held-out style keeps its own textures), got style "
+                         f"{style!r}")
     if plain_walls and style != "train":
         raise ValueError(f"plain_walls needs style 'train' (the held-out and classic styles have no walls), "
                          f"got style {style!r}")
@@ -44,7 +49,7 @@ def random_scene(seed: int, num_views: int = 7, height: int = 256, width: int = 
             raise ValueError(f"unknown synthetic style {style!r}; choose one of {STYLES}")
         if style == "train":
             scene = training_scene(seed, num_views, height, width, num_objects, layout=layout,
-                                   sensor_width=sensor_width, plain_walls=plain_walls)
+                                   sensor_width=sensor_width, plain_walls=plain_walls, textures=textures)
         else:
             scene = heldout_scene(seed, num_views, height, width, num_objects, sensor_width=sensor_width)
         if not 0.0 <= detail <= 1.0:

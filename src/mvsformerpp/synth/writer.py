@@ -45,7 +45,7 @@ def _pairs(centers: np.ndarray, num_neighbors: int) -> dict:
 def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, height: int = 256, width: int = 320,
                    num_objects: int | None = None, gt_points: int = 200_000, style: str = "classic",
                    sensor_width: tuple[float, float] | None = None, detail: float = 0.0,
-                   layout: str | None = None, plain_walls: float = 0.0) -> Path:
+                   layout: str | None = None, plain_walls: float = 0.0, textures: str | None = None) -> Path:
     """Render a scene of ``style`` (see :func:`random_scene`) and write it (deterministic for a seed):
 
     ``images/NNNNNNNN.png``, ``cams/NNNNNNNN_cam.txt`` (4-number depth line from the GT depth range),
@@ -56,7 +56,7 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
     principal point in the middle); their cam files hold the whole photo's depth range joined with the
     view's, as a real crop's would. ``detail``: strength of the fine surface detail (see
     :func:`random_scene`). ``layout``, ``plain_walls``: the ``train`` style's layout and share of painted
-    walls (:func:`random_scene`).
+    walls, ``textures`` its texture library (:func:`random_scene`).
 
     The folder is claimed by the output guard (:func:`~mvsformerpp.utils.output_guard.claim_output_folder`):
     new or empty, or the output of an earlier call with the same settings, which this completes (the scene
@@ -65,7 +65,7 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
 
     settings = dict(seed=seed, num_views=num_views, height=height, width=width, num_objects=num_objects,
                     gt_points=gt_points, style=style, sensor_width=sensor_width, detail=detail, layout=layout,
-                    plain_walls=plain_walls)
+                    plain_walls=plain_walls, textures=textures)
     with claim_output_folder(out_dir, kind="synth", settings={"scenes": 1, **settings}, flag="OUT") as out:
         if not (out / SCENE_RECORD).is_file():
             write_scene(out, **settings)
@@ -74,10 +74,10 @@ def generate_scene(out_dir: str | Path, seed: int = 0, num_views: int = 7, heigh
 
 def write_scene(out: Path, seed: int, num_views: int, height: int, width: int, num_objects: int | None,
                 gt_points: int, style: str, sensor_width: tuple[float, float] | None, detail: float,
-                layout: str | None, plain_walls: float) -> None:
+                layout: str | None, plain_walls: float, textures: str | None) -> None:
     """Render and write one scene into the folder ``out`` (see :func:`generate_scene`; ``scene.json`` last)."""
     scene = random_scene(seed, num_views, height, width, num_objects, style=style, sensor_width=sensor_width,
-                         detail=detail, layout=layout, plain_walls=plain_walls)
+                         detail=detail, layout=layout, plain_walls=plain_walls, textures=textures)
     photo_points = [sensor_points(scene, cam) for cam in scene.cameras]
     if sensor_width is not None:  # windows as photos of their own (principal points in the middle)
         scene.cameras = [centred_window(cam, width, height) for cam in scene.cameras]

@@ -110,6 +110,17 @@ class TrainConfig:
     overlap too little to match. None: no check."""
     parallax_samples: int = 32
     """Training samples the ``parallax_range`` and ``min_overlap`` checks draw."""
+    # ---- real photos mixed into synthetic training (mvsformerpp.data.real)
+    real_scenes: tuple[str, ...] = field(default=(), metadata={"metavar": "SCENE"})
+    """Calibrated real scenes (any layout ``reconstruct`` reads: LLFF, IDR, COLMAP, MVSNet, ...) that make half of
+    every synthetic batch, as pairs of references of one scene: supervised by ``real_labels`` and/or
+    ``self_supervised_weight`` (one of them is needed). Empty: synthetic scenes only."""
+    real_labels: str | None = field(default=None, metadata={"metavar": "LABELS"})
+    """Teacher depth maps of the real scenes, ``LABELS/<scene folder>/<view>.pfm`` (``tools/teacher_labels.py``):
+    the cross-entropy trains on them where they hold a depth (distillation). None: no labels."""
+    self_supervised_weight: float = 0.0
+    """Weight of the self-supervised loss (photometric consistency of every stage's expected depth and cross-view
+    agreement, :mod:`mvsformerpp.training.self_supervision`) on the real scenes' samples (0: off)."""
     # ---- optimisation
     batch_size: int = 4
     """Global batch (all processes together); the reference: 16 on 4 GPUs."""
@@ -312,10 +323,9 @@ def check_config(config: TrainConfig) -> TrainConfig:
         _check_synthetic(config)
     _check_options(config)
     if config.recipe == "synthetic":
-        # (imported here: the command line reads this module for its flags without torch, which the data needs)
-        from mvsformerpp.data.synthetic import resolve_source
-
-        resolve_source(config.synthetic_source)
+        _check_synthetic_source(config)
+    if config.real_scenes:
+        _check_real(config)
     if config.parallax_range is not None and not 0 <= config.parallax_range[0] < config.parallax_range[1]:
         raise InputError(f"parallax_range {list(config.parallax_range)} must be two pixel shifts 0 <= low < high")
     if config.min_overlap is not None and not 0 <= config.min_overlap <= 1:
@@ -359,7 +369,7 @@ def _check_shape(config: TrainConfig) -> None:
 _NUMBERS = (("lr", 0.0, math.inf, True), ("min_lr_ratio", 0.0, 1.0, False), ("weight_decay", 0.0, math.inf, False),
             ("grad_clip", 0.0, math.inf, True), ("interval_scale", 0.0, math.inf, True),
             ("resize_min_scale", 0.0, 1.0, True), ("synthetic_render_scale", 1.0, 4.0, False),
-            ("window_guide", 0.0, 1.0, False))
+            ("window_guide", 0.0, 1.0, False), ("self_supervised_weight", 0.0, math.inf, False))
 """(field, low, high, low excluded) of the real-valued fields (None: unset, not checked)."""
 
 
@@ -412,6 +422,43 @@ def _check_options(config: TrainConfig) -> None:
     if config.cvt_random_placement and config.cvt_train_shifts:
         raise InputError("cvt_random_placement and cvt_train_shifts each choose where stage 1's token grid lies in "
                          "training: set at most one of them true")
+
+
+def _check_synthetic_source(config: TrainConfig) -> None:
+    """The synthetic recipe's generator and its texture library (``synthetic_options: {textures: LIBRARY}``)."""
+    # (imported here: the command line reads this module for its flags without torch, which the data needs)
+    from mvsformerpp.data.synthetic import resolve_source
+    from mvsformerpp.synth.texture_library import read_manifest
+
+    resolve_source(config.synthetic_source)
+    if config.synthetic_options.get("textures") is not None:  # a texture library: checked before training
+        read_manifest(config.synthetic_options["textures"])
+
+
+REAL_BLOCK = 4
+"""Samples a batch keeps together when real scenes are mixed in: two synthetic samples and a real pair."""
+
+
+def _check_real(config: TrainConfig) -> None:
+    """``real_scenes`` can train: a synthetic recipe, whole pairs per forward pass, a loss, readable scenes."""
+    if config.recipe != "synthetic" or config.synthetic_scene_batches:
+        raise InputError("real_scenes are mixed into the synthetic recipe without synthetic_scene_batches (every "
+                         f"batch: {REAL_BLOCK // 2} synthetic samples and a real pair)")
+    if config.batch_size % REAL_BLOCK or (config.micro_batch and config.micro_batch % REAL_BLOCK):
+        raise InputError(f"with real_scenes, batch_size and micro_batch must be multiples of {REAL_BLOCK} (a pair of "
+                         f"real references stays in one pass), got {config.batch_size} and {config.micro_batch}")
+    if config.real_labels is None and config.self_supervised_weight <= 0:
+        raise InputError("real_scenes need real_labels (teacher depth maps) or self_supervised_weight > 0")
+    # (imported here: the command line reads this module for its flags without torch, which the data needs)
+    from mvsformerpp.data.real import load_real_scenes, scene_name
+
+    load_real_scenes(config.real_scenes)
+    if config.real_labels is not None:
+        labels = Path(config.real_labels)
+        found = [scene_name(p) for p in config.real_scenes if any((labels / scene_name(p)).glob("*.pfm"))]
+        if not found:
+            raise InputError("no teacher depth maps for any real scene (expected LABELS/<scene folder>/<view>.pfm, "
+                             "made by tools/teacher_labels.py)", labels)
 
 
 def dump_config(config: TrainConfig) -> str:

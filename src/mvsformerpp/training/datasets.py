@@ -6,6 +6,7 @@ from pathlib import Path
 
 from mvsformerpp.data import MVSDataset, PhotometricAugment, ResizeCrop, SyntheticDataset
 from mvsformerpp.data.dtu import blended_entries, dtu_entries, dtu_list, read_list
+from mvsformerpp.data.real import RealSceneDataset, load_real_scenes
 from mvsformerpp.data.scenes import BalancedMix, SceneDataset
 from mvsformerpp.errors import InputError
 from mvsformerpp.training.config import TrainConfig
@@ -33,6 +34,8 @@ def build_datasets(config: TrainConfig) -> tuple[MVSDataset, MVSDataset]:
                                  resize_crop=train_tf, photometric=photometric, **syn, **common)
         val = SyntheticDataset(config.synthetic_val_scenes, scene_seed=config.seed + SYNTHETIC_VAL_OFFSET,
                                seed=config.seed + 1, resize_crop=val_tf, **syn, **common)
+        if config.real_scenes:
+            train = BalancedMix([train, real_dataset(config, photometric)])
         return train, val
     scene_kw = dict(num_views=config.num_views, **common)
     depth_kw = dict(num_depth=config.num_depth, interval_scale=config.interval_scale)
@@ -72,3 +75,14 @@ def build_datasets(config: TrainConfig) -> tuple[MVSDataset, MVSDataset]:
                       lights=(3,))
         return train, val
     raise InputError(f"unknown recipe {config.recipe!r}")
+
+
+def real_dataset(config: TrainConfig, photometric: PhotometricAugment | None) -> RealSceneDataset:
+    """The real scenes of ``config.real_scenes`` as training samples: whole photos (resized to the batch's
+    size times 1-1.2, then cropped), so the views of a pair overlap; their teacher labels and whether the
+    self-supervised loss scores them."""
+    real_tf = ResizeCrop(None, tuple(config.resize_range), 0.0, require_valid=False)
+    return RealSceneDataset(load_real_scenes(config.real_scenes), num_views=config.num_views,
+                            labels=config.real_labels, self_supervised=config.self_supervised_weight > 0,
+                            resize_crop=real_tf, photometric=photometric, seed=config.seed + 2,
+                            num_depth=config.num_depth)

@@ -125,6 +125,7 @@ def recipe_shifts(config, samples: int = 48) -> tuple[np.ndarray, np.ndarray, np
     cfg = get_config(config.preset)
     steps = plane_steps(cfg.num_hypotheses, cfg.hypothesis_ratio)
     train, _ = build_datasets(config)
+    train = getattr(train, "datasets", [train])[0]  # a mix (real photos beside synthetic scenes): its first set
     sizes = list(config.resolutions) or [(config.height, config.width)]
     picks = np.linspace(0, len(train) - 1, samples).astype(np.int64)
     shifts, focals, overlaps = [], [], []

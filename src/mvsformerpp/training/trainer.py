@@ -38,10 +38,11 @@ from mvsformerpp.training.checkpoints import (
     save_training_checkpoint,
     set_rng_state,
 )
-from mvsformerpp.training.config import TrainConfig
+from mvsformerpp.training.config import REAL_BLOCK, TrainConfig
 from mvsformerpp.training.datasets import build_datasets
 from mvsformerpp.training.logging import MetricsLog
 from mvsformerpp.training.schedule import build_scheduler
+from mvsformerpp.training.self_supervision import self_supervised_loss
 from mvsformerpp.utils.precision import autocast
 
 
@@ -125,6 +126,8 @@ def shuffle_block(config: TrainConfig) -> int:
     ``synthetic_scene_batches`` (rendered once for all of them), else 1."""
     if config.recipe == "synthetic" and config.synthetic_scene_batches:
         return config.synthetic_views_per_scene
+    if config.real_scenes:
+        return REAL_BLOCK
     return 1
 
 
@@ -363,6 +366,24 @@ def window_guide(chunk: dict, fraction: float, generator: torch.Generator) -> di
     return guide
 
 
+def _chunk_loss(model, chunk: dict, loss_weights, config: TrainConfig, device: torch.device,
+                guides: torch.Generator) -> tuple[torch.Tensor, dict]:
+    """One micro-batch's forward pass and loss: the cascade cross-entropy on the depth labels and, with
+    ``self_supervised_weight``, that weight times the self-supervised loss of the trained stages
+    (:func:`~mvsformerpp.training.self_supervision.self_supervised_loss`); returns (loss, per-stage losses)."""
+    with autocast(device, config.precision):
+        guide = window_guide(chunk, config.window_guide, guides)
+        extra = {"window_guide": guide} if guide is not None else {}
+        if config.train_stages < 4:
+            extra["stages"] = config.train_stages
+        out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"], **extra)
+    loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
+    if config.self_supervised_weight > 0:
+        stages = tuple(f"stage{s}" for s in range(1, config.train_stages + 1))
+        loss = loss + config.self_supervised_weight * self_supervised_loss(out, chunk, stages)[0]
+    return loss, per_stage
+
+
 def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weights, config: TrainConfig,
                 device: torch.device, info: D.DistInfo, step: int = 0):
     """One optimiser step over this process's batch; returns ([total, stage1..4] losses, skipped)."""
@@ -376,13 +397,7 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
         chunk = _to(_slice(batch, a, b), device)
         sync = i == len(chunks) - 1 or not info.distributed
         with contextlib.nullcontext() if sync else model.no_sync():
-            with autocast(device, config.precision):
-                guide = window_guide(chunk, config.window_guide, guides)
-                extra = {"window_guide": guide} if guide is not None else {}
-                if config.train_stages < 4:
-                    extra["stages"] = config.train_stages
-                out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"], **extra)
-            loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
+            loss, per_stage = _chunk_loss(model, chunk, loss_weights, config, device, guides)
             share = (b - a) / per_rank
             finite = bool(torch.isfinite(loss))
             bad = bad or not finite
