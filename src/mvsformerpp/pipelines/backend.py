@@ -30,9 +30,10 @@ ONNX_DIR = "onnx"
 """The folder inside a reconstruction where ``reconstruct`` keeps the model it exported."""
 CLEARLY_FASTER = 1.15
 """How much faster (seconds per view, PyTorch / onnxruntime) ``auto`` needs onnxruntime to be."""
-MEASURED: dict[tuple[str, str], float] = {}
+MEASURED: dict[tuple[str, str], float] = {("lite", "cpu"): 0.84, ("paper", "cpu"): 0.45}
 """(preset, device type) -> PyTorch's seconds per view over onnxruntime's, as bench/bench_onnx.py measured
-``reconstruct`` (docs/onnx.md, "Speed"); pairs not listed were not measured and run PyTorch."""
+``reconstruct`` (docs/onnx.md, "Speed"; the paper network's lowest over the sizes measured: 1.20 at 640x512 with
+equal CPU time, 0.45 at 1536x1152); pairs not listed were not measured and run PyTorch."""
 
 
 def backend_weights(run: Run, config: ReconstructConfig) -> Weights:
