@@ -4,10 +4,17 @@ from __future__ import annotations
 
 import json
 import shutil
+import signal
 from pathlib import Path
 
 import numpy as np
 import pytest
+
+# A shell starts a background job with Ctrl-C (SIGINT) ignored, and processes inherit that: the tests of what
+# Ctrl-C does (in this process and in the commands they start) need it delivered, so the suite restores the
+# default when it was started that way.
+if signal.getsignal(signal.SIGINT) == signal.SIG_IGN:
+    signal.signal(signal.SIGINT, signal.default_int_handler)
 
 
 def make_synth_run(root: Path, seed: int = 3, num_views: int = 5, height: int = 96, width: int = 128,
