@@ -18,6 +18,7 @@ from mvsformerpp.utils.output_guard import (
     check_replaceable,
     child,
     claim_output_file,
+    claim_output_folder,
 )
 from mvsformerpp.utils.output_tree import claim_output_tree
 
@@ -200,3 +201,24 @@ def test_python_writers_are_guarded_as_the_commands_are(synth_run, writer):
     with pytest.raises(InputError, match="inside the installed mvsformerpp package"):
         _python_writers(synth_run, synth_run.parent / "scene")[writer](target)
     assert not target.exists()
+
+
+def test_a_setting_added_after_the_run_reads_as_none_and_an_extra_one_is_named(tmp_path):
+    out = tmp_path / "set"
+    with claim_output_folder(out, kind="synth", settings={"seed": 3, "textures": None}):
+        (out / "scene.json").write_text("{}")
+    marker = out / MARKER
+    record = json.loads(marker.read_text())
+    del record["settings"]["textures"]  # as a version without the setting wrote it
+    record["settings"]["retired"] = 1
+    marker.write_text(json.dumps(record))
+    with pytest.raises(InputError, match=r"other settings \(retired 1 -> \(none\)\)"):
+        with claim_output_folder(out, kind="synth", settings={"seed": 3, "textures": None}):
+            pass
+    del record["settings"]["retired"]
+    marker.write_text(json.dumps(record))
+    with claim_output_folder(out, kind="synth", settings={"seed": 3, "textures": None}):
+        pass  # completes the older run
+    with pytest.raises(InputError, match=r"other settings \(textures None -> 'lib'\)"):
+        with claim_output_folder(out, kind="synth", settings={"seed": 3, "textures": "lib"}):
+            pass

@@ -159,12 +159,16 @@ def _check_settings(out: Path, kind: str, settings: dict) -> None:
     """An earlier run of ``kind`` in ``out`` must have had ``settings`` (a rerun completes it, never mixes)."""
     recorded = (_marker(out) or {}).get("settings")
     entries = [p for p in out.iterdir() if p.name not in (LOCK, MARKER) and not _TEMPORARY.match(p.name)]
-    if recorded == settings or not entries:
+    if not entries:
         return
     if not isinstance(recorded, dict):
         raise InputError(f"the output folder holds an earlier mvsformerpp {kind} output whose settings are not "
                          "recorded; choose a new folder (or delete this one to start over)", out)
+    # A setting the record lacks was added after that run was written: its None keeps the earlier behaviour.
     diffs = [f"{k} {recorded.get(k)!r} -> {v!r}" for k, v in settings.items() if recorded.get(k) != v]
+    diffs += [f"{k} {recorded[k]!r} -> (none)" for k in recorded if k not in settings]
+    if not diffs:
+        return
     raise InputError(f"the output folder holds mvsformerpp {kind} output of other settings ({'; '.join(diffs)}); "
                      "run with the same settings to complete it, or choose a new folder", out)
 
