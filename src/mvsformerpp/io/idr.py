@@ -22,7 +22,7 @@ from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import image_size, list_images
 from mvsformerpp.io.mvsnet import image_scale_factor
 from mvsformerpp.io.scene import Scene, View
-from mvsformerpp.io.viewselect import neighbors_from_cameras
+from mvsformerpp.io.viewselect import set_neighbors_from_cameras
 
 CAMERA_FILES = ("cameras_sphere.npz", "cameras.npz")
 IMAGE_DIRS = ("image", "images")
@@ -93,8 +93,5 @@ def load_idr_scene(path: str | Path, num_neighbors: int = 10) -> Scene:
                 near, far = max(z - r, 0.05 * z), z + r
         views.append(View(name=photo.stem, image_path=photo, width=w, height=h, K=K, R=R, t=t,
                           depth_min=near, depth_max=far))
-    nbrs = neighbors_from_cameras(np.stack([v.center for v in views]), np.stack([v.R[2] for v in views]),
-                                  num_neighbors)
-    for v, nb in zip(views, nbrs):
-        v.neighbors = [j for j, _ in nb]
+    set_neighbors_from_cameras(views, num_neighbors)
     return Scene(views=views, root=root, source_format="idr")

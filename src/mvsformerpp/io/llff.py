@@ -22,7 +22,7 @@ import numpy as np
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import image_size, list_images
 from mvsformerpp.io.scene import Scene, View
-from mvsformerpp.io.viewselect import neighbors_from_cameras
+from mvsformerpp.io.viewselect import set_neighbors_from_cameras
 
 POSES_FILE = "poses_bounds.npy"
 
@@ -75,8 +75,5 @@ def load_llff_scene(path: str | Path, num_neighbors: int = 10, image_dir: str = 
         near, far = (float(b) for b in bounds[i])
         views.append(View(name=photo.stem, image_path=photo, width=w, height=h, K=K, R=R[i], t=t[i],
                           depth_min=near if 0 < near < far else None, depth_max=far if 0 < near < far else None))
-    nbrs = neighbors_from_cameras(np.stack([v.center for v in views]), np.stack([v.R[2] for v in views]),
-                                  num_neighbors)
-    for v, nb in zip(views, nbrs):
-        v.neighbors = [j for j, _ in nb]
+    set_neighbors_from_cameras(views, num_neighbors)
     return Scene(views=views, root=root, source_format="llff")

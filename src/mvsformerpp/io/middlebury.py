@@ -27,7 +27,7 @@ import numpy as np
 from mvsformerpp.errors import FormatError, InputError
 from mvsformerpp.io.images import image_size
 from mvsformerpp.io.scene import Scene, View
-from mvsformerpp.io.viewselect import neighbors_from_cameras, point_closest_to_axes
+from mvsformerpp.io.viewselect import point_closest_to_axes, set_neighbors_from_cameras
 from mvsformerpp.utils.atomic import atomic_open
 
 
@@ -161,8 +161,5 @@ def load_middlebury_scene(path: str | Path, num_neighbors: int = 10) -> Scene:
     for v, r in zip(views, ranges):
         if r is not None:
             v.depth_min, v.depth_max = r
-    nbrs = neighbors_from_cameras(np.stack([v.center for v in views]), np.stack([v.R[2] for v in views]),
-                                  num_neighbors)
-    for v, nb in zip(views, nbrs):
-        v.neighbors = [j for j, _ in nb]
+    set_neighbors_from_cameras(views, num_neighbors)
     return Scene(views=views, root=par, source_format="middlebury")

@@ -45,7 +45,7 @@ from mvsformerpp.io.images import find_image, image_size
 from mvsformerpp.io.pair import Pairs, format_pair, read_pair, write_pair
 from mvsformerpp.io.scene import Scene, View
 from mvsformerpp.io.text import format_float, read_text
-from mvsformerpp.io.viewselect import neighbors_from_cameras
+from mvsformerpp.io.viewselect import set_neighbors_from_cameras
 from mvsformerpp.utils.atomic import atomic_open
 
 log = logging.getLogger(__name__)
@@ -323,10 +323,7 @@ def set_neighbors(
                 views[index[ref]].neighbors = [index[s] for s, _ in srcs if s != ref and s in index][:num_neighbors]
         return
     log.info("no pair.txt; choosing neighbours from the camera geometry")
-    centers = np.stack([v.center for v in views])
-    dirs = np.stack([v.R[2] for v in views])
-    for v, nb in zip(views, neighbors_from_cameras(centers, dirs, num_neighbors)):
-        v.neighbors = [j for j, _ in nb]
+    set_neighbors_from_cameras(views, num_neighbors)
 
 
 def load_mvsnet_scene(

@@ -13,6 +13,8 @@ Neighbours are the best-scoring views (top 10 by default), best first, views wit
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import numpy as np
 
 THETA0_DEG = 5.0
@@ -139,3 +141,11 @@ def neighbors_from_cameras(
             if theta <= MAX_CAMERA_ANGLE_DEG:
                 scores[i, j] = float(triangulation_angle_score(theta))
     return top_neighbors(scores, k)
+
+
+def set_neighbors_from_cameras(views: Sequence, k: int = 10) -> None:
+    """Give each view (a :class:`~mvsformerpp.io.scene.View`) its ``k`` best neighbours by
+    :func:`neighbors_from_cameras` from the views' centres and viewing directions."""
+    scored = neighbors_from_cameras(np.stack([v.center for v in views]), np.stack([v.R[2] for v in views]), k)
+    for v, nb in zip(views, scored):
+        v.neighbors = [j for j, _ in nb]

@@ -86,9 +86,7 @@ def export_for_run(config: ReconstructConfig, folder: Path, quiet: bool) -> Onnx
     """The run's network exported into ``folder`` (with the run's views, temperatures and stage-1 settings)."""
     if not quiet:
         print(f"exporting the network to ONNX for this run (once; kept in {folder})", flush=True)
-    return export_onnx(folder, OnnxExportConfig(preset=config.preset, checkpoint=config.checkpoint,
-                                                num_views=config.num_views, temperatures=config.temperatures,
-                                                cvt_shifts=config.cvt_shifts, seed=config.seed), quiet=quiet)
+    return export_onnx(folder, OnnxExportConfig.for_run(config), quiet=quiet)
 
 
 def _remove_own_export(folder: Path) -> None:

@@ -20,6 +20,8 @@ from mvsformerpp.utils.config_flags import flag_name
 MIN_OPSET = 17
 """The oldest ONNX opset the graphs can be written in: LayerNormalization came with 17, GridSample with 16."""
 MAX_VIEWS = 10
+NETWORK_FIELDS = ("preset", "checkpoint", "num_views", "temperatures", "cvt_shifts", "seed")
+"""The settings export-onnx shares with reconstruct: they decide the network and its weights."""
 
 
 @dataclass(frozen=True)
@@ -59,6 +61,11 @@ class OnnxExportConfig:
 
     def network_config(self) -> ReconstructConfig:
         """The network these settings export, as ``reconstruct`` would build and run it."""
-        return ReconstructConfig(preset=self.preset, checkpoint=self.checkpoint, num_views=self.num_views,
-                                 temperatures=tuple(self.temperatures), cvt_shifts=self.cvt_shifts, seed=self.seed,
-                                 device="cpu", precision="fp32")
+        shared = {k: getattr(self, k) for k in NETWORK_FIELDS}
+        return ReconstructConfig(**{**shared, "temperatures": tuple(self.temperatures)}, device="cpu",
+                                 precision="fp32")
+
+    @classmethod
+    def for_run(cls, config: ReconstructConfig) -> OnnxExportConfig:
+        """The export of the network ``reconstruct`` runs with ``config``."""
+        return cls(**{k: getattr(config, k) for k in NETWORK_FIELDS})
