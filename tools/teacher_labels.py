@@ -12,7 +12,7 @@ pixel of reprojection error, 1 % of depth), so the labels hold what several view
 ``LABELS/<scene folder>/<view>.pfm`` at each photo's size (0 = no label), what ``TrainConfig.real_labels``
 reads, with ``LABELS/labels.json`` (teacher, checkpoint, settings, the share of pixels kept per scene). The
 teacher's raw maps are kept in ``LABELS/<scene>/raw/`` so a second run with other filter settings skips
-the network.
+the network (a map made at another size or from other views is made again).
 """
 
 from __future__ import annotations
@@ -49,12 +49,13 @@ def teacher_maps(kind, net, scene, out: Path, max_size: int, views: int):
     maps = []
     for i, v in enumerate(scene.views):
         cached = raw / f"{v.name}.npz"
-        if cached.is_file():
-            with np.load(cached) as z:
-                maps.append((z["depth"], z["confidence"]))
-            continue
         ids = [i] + v.neighbors[: views - 1]
         w, h = working_size(v.width, v.height, max_size)
+        if cached.is_file():  # kept only if made at this size from the same views
+            with np.load(cached) as z:
+                if z["depth"].shape == (h, w) and "views" in z and z["views"].tolist() == ids:
+                    maps.append((z["depth"], z["confidence"]))
+                    continue
         imgs = np.stack([np.asarray(Image.fromarray(read_image(scene.views[j].image_path)).resize((w, h), Image.BOX))
                          for j in ids])
         K = np.stack([scale_intrinsics(scene.views[j].K, w / scene.views[j].width, h / scene.views[j].height)
@@ -62,7 +63,8 @@ def teacher_maps(kind, net, scene, out: Path, max_size: int, views: int):
         E = np.stack([scene.views[j].extrinsic for j in ids])
         t = time.perf_counter()
         depth, conf = predict(kind, net, imgs, K, E, v.depth_min, v.depth_max)
-        np.savez(cached, depth=depth, confidence=conf)
+        np.savez(tmp := cached.with_suffix(".next.npz"), depth=depth, confidence=conf, views=np.array(ids))
+        tmp.replace(cached)
         print(f"  {v.name}: {time.perf_counter() - t:.1f} s", flush=True)
         maps.append((depth, conf))
     return maps
@@ -94,6 +96,7 @@ def main() -> int:
     from mvsformerpp.data.real import load_real_scenes
     from mvsformerpp.errors import MVSFormerError
     from mvsformerpp.io.pfm import write_pfm
+    from mvsformerpp.utils.atomic import atomic_write_text
 
     p = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("scenes", nargs="+", help="real scene folders (or camera files)")
@@ -128,7 +131,7 @@ def main() -> int:
             kept.append(float((label > 0).mean()))
         summary["scenes"][name] = {"views": len(scene), "kept_share_mean": float(np.mean(kept))}
         print(f"{name}: {np.mean(kept):.1%} of the pixels labelled", flush=True)
-    (out / "labels.json").write_text(json.dumps(summary, indent=1) + "\n")
+    atomic_write_text(out / "labels.json", json.dumps(summary, indent=1) + "\n")
     return 0
 
 

@@ -49,3 +49,29 @@ def test_a_missing_teacher_stops_before_any_work(tmp_path):
                         str(tmp_path / "nowhere"), "-o", str(tmp_path / "labels")], capture_output=True, text=True)
     assert r.returncode == 2 and r.stderr.count("error:") == 1 and "IterMVS" in r.stderr
     assert not (tmp_path / "labels").exists()
+
+
+def test_cached_teacher_maps_are_reused_only_for_the_same_size_and_views(tmp_path, monkeypatch):
+    """A second run reads the raw maps; one at another working size (or from other views) predicts again."""
+    import peers
+
+    from mvsformerpp.io import load_scene
+    from mvsformerpp.synth import generate_scene
+
+    scene = load_scene(generate_scene(tmp_path / "s", seed=4, num_views=3, height=64, width=96))
+    calls = []
+
+    def fake_predict(kind, net, imgs, K, E, dmin, dmax):
+        calls.append(imgs.shape)
+        h, w = imgs.shape[1:3]
+        return np.full((h, w), float(len(calls)), np.float32), np.ones((h, w), np.float32)
+
+    monkeypatch.setattr(peers, "predict", fake_predict)
+    first = teacher_labels.teacher_maps("itermvs", None, scene, tmp_path / "L", max_size=96, views=3)
+    assert len(calls) == 3 and all(s == (3, 64, 96, 3) for s in calls)
+    again = teacher_labels.teacher_maps("itermvs", None, scene, tmp_path / "L", max_size=96, views=3)
+    assert len(calls) == 3 and all((a[0] == b[0]).all() for a, b in zip(first, again))
+    smaller = teacher_labels.teacher_maps("itermvs", None, scene, tmp_path / "L", max_size=64, views=3)
+    assert len(calls) == 6 and smaller[0][0].shape == (32, 64)
+    teacher_labels.teacher_maps("itermvs", None, scene, tmp_path / "L", max_size=64, views=2)
+    assert len(calls) == 9 and calls[-1][0] == 2

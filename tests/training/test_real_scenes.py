@@ -56,11 +56,20 @@ def test_pairs_of_references_with_labels(tmp_path):
 
 
 def test_training_with_real_scenes_runs(tmp_path):
+    """Two steps run; the metrics rows carry the self-supervised terms, averaged over the real samples only."""
+    import json
+
     _llff_scene(tmp_path / "cap")
     config = tiny_config(height=32, width=32, batch_size=4, max_steps=2, real_scenes=[str(tmp_path / "cap")],
-                         self_supervised_weight=1.0)
+                         self_supervised_weight=1.0, log_every=1)
     summary = run_training(config, tmp_path / "run")
     assert summary["steps"] == 2 and summary["bad_steps"] == 0
+    rows = [json.loads(x) for x in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines() if '"loss"' in x]
+    assert len(rows) == 2
+    for row in rows:
+        # a real sample's photometric error lies in (0, 1] (colours in [0, 1]); agreement is a relative error
+        assert 0 < row["photometric"] <= 1 and row["agreement"] >= 0
+        assert row["loss"] > row["photometric"]  # the synthetic half's cross-entropy adds to it
 
 
 @pytest.mark.parametrize("change, expect", [

@@ -190,3 +190,22 @@ def test_ctrl_c_while_the_training_state_is_saved_finishes_the_save_then_stops(t
     monkeypatch.undo()
     assert main([*args, "--resume"]) == 0
     assert torch.load(run / "checkpoints" / "last.state.pt", weights_only=True)["step"] == 3
+
+
+def test_a_checkpoint_whose_log_window_has_the_older_five_losses_resumes(tmp_path):
+    """Checkpoints written before the self-supervised terms entered the loss vector (5 entries) resume, and the
+    next metrics row is the mean of the restored window and the new step."""
+    run = tmp_path / "run"
+    cfg = tiny_config(max_steps=2, save_every=1, log_every=1)
+    run_training(cfg, run)
+    step2 = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if '"loss"' in x][-1]["loss"]
+    (run / "checkpoints" / "last.state.pt").unlink()  # as if cut after step 1: the step-1 pair is the newest
+    path = run / "checkpoints" / "last.prev.state.pt"
+    state = torch.load(path, weights_only=True)
+    assert state["step"] == 1
+    state["log_window"] = {"sums": torch.full((5,), 1000.0, dtype=torch.float64), "steps": 1}
+    torch.save(state, path)
+    assert run_training(cfg, run, resume=True)["steps"] == 2
+    rows = [json.loads(x) for x in (run / "metrics.jsonl").read_text().splitlines() if '"loss"' in x]
+    assert [r["step"] for r in rows] == [1, 2]
+    assert rows[-1]["loss"] == pytest.approx((1000 + step2) / 2, rel=1e-5)  # the resumed step 2 is the same step

@@ -45,6 +45,9 @@ from mvsformerpp.training.schedule import build_scheduler
 from mvsformerpp.training.self_supervision import self_supervised_loss
 from mvsformerpp.utils.precision import autocast
 
+LOSS_FIELDS = 8
+"""Length of a step's loss vector: total, stage 1-4, photometric, agreement, share with self-supervised samples."""
+
 
 class TrainingError(MVSFormerError):
     """The run cannot go on (too many non-finite losses, ...)."""
@@ -263,7 +266,9 @@ class _TrainingRun:
         # the running means of the next metrics row (kept in the checkpoint, so resumed rows are the same)
         self.t_log, self.n_log, self.sums, self.n_steps = time.perf_counter(), 0, None, 0
         if state.get("log_window"):
-            self.sums, self.n_steps = state["log_window"]["sums"], int(state["log_window"]["steps"])
+            sums = state["log_window"]["sums"]  # a checkpoint from before the self-supervised fields: padded
+            self.sums = None if sums is None else torch.cat([sums, sums.new_zeros(LOSS_FIELDS - len(sums))])
+            self.n_steps = int(state["log_window"]["steps"])
         self.last_val = None
 
     def _resume(self) -> dict:
@@ -317,11 +322,15 @@ class _TrainingRun:
 
     def _write_row(self, lr: float) -> None:
         """A metrics row of the running means since the last one; the means start again."""
-        avg = (self.sums / self.n_steps).tolist()
+        avg = (self.sums[:5] / self.n_steps).tolist()
         sps = self.n_log / max(time.perf_counter() - self.t_log, 1e-9)
+        self_supervised = {}
+        if self.config.self_supervised_weight > 0:  # means over the part of the batches with real samples
+            photo, agree, share = self.sums[5:].tolist()
+            self_supervised = {"photometric": photo / share, "agreement": agree / share} if share > 0 else {}
         self.log.write({"step": self.step, "epoch": self.step / self.per_epoch, "loss": avg[0], "lr": lr,
                         **{f"stage{i + 1}": v for i, v in enumerate(avg[1:]) if i < self.config.train_stages},
-                        "samples_per_s": sps, "bad_steps": self.bad_steps})
+                        **self_supervised, "samples_per_s": sps, "bad_steps": self.bad_steps})
         self.bar.update(loss=f"{avg[0]:.3f}", lr=f"{lr:.2e}", sps=f"{sps:.2f}")
         self.t_log, self.n_log, self.sums, self.n_steps = time.perf_counter(), 0, None, 0
 
@@ -378,20 +387,23 @@ def _chunk_loss(model, chunk: dict, loss_weights, config: TrainConfig, device: t
             extra["stages"] = config.train_stages
         out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"], **extra)
     loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
-    if config.self_supervised_weight > 0:
+    if config.self_supervised_weight > 0 and bool((chunk["self_supervised"] > 0).any()):
         stages = tuple(f"stage{s}" for s in range(1, config.train_stages + 1))
-        loss = loss + config.self_supervised_weight * self_supervised_loss(out, chunk, stages)[0]
+        ss_loss, parts = self_supervised_loss(out, chunk, stages)
+        loss = loss + config.self_supervised_weight * ss_loss
+        per_stage = {**per_stage, **parts}
     return loss, per_stage
 
 
 def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weights, config: TrainConfig,
                 device: torch.device, info: D.DistInfo, step: int = 0):
-    """One optimiser step over this process's batch; returns ([total, stage1..4] losses, skipped)."""
+    """One optimiser step over this process's batch; returns ([total, stage1..4, photometric, agreement, share of
+    the batch with self-supervised samples] (the two self-supervised terms summed over that share), skipped)."""
     opt.zero_grad(set_to_none=True)
     guides = torch.Generator().manual_seed(config.seed * 1_000_003 + step * 101 + info.rank)
     n = batch["imgs"].shape[0]
     chunks = [(a, min(a + micro, n)) for a in range(0, n, micro)]
-    loss_vec = torch.zeros(5, dtype=torch.float64)
+    loss_vec = torch.zeros(LOSS_FIELDS, dtype=torch.float64)
     bad = False
     for i, (a, b) in enumerate(chunks):
         chunk = _to(_slice(batch, a, b), device)
@@ -405,7 +417,8 @@ def _train_step(model, opt, scaler, batch, micro: int, per_rank: int, loss_weigh
             scaler.scale((loss if finite else loss.nan_to_num(0.0, 0.0, 0.0) * 0.0) * share).backward()
         if finite:
             stages = [float(per_stage[f"stage{s}"].detach()) if f"stage{s}" in per_stage else 0.0 for s in range(1, 5)]
-            loss_vec += torch.tensor([float(loss.detach())] + stages, dtype=torch.float64) * share
+            ss = [per_stage["photometric"], per_stage["agreement"], 1.0] if "photometric" in per_stage else [0.0] * 3
+            loss_vec += torch.tensor([float(loss.detach())] + stages + ss, dtype=torch.float64) * share
     bad = D.any_rank(bad, info)
     if bad:
         opt.zero_grad(set_to_none=True)
