@@ -43,6 +43,7 @@ def teacher_maps(kind, net, scene, out: Path, max_size: int, views: int):
 
     from mvsformerpp.geometry.camera import scale_intrinsics
     from mvsformerpp.io.images import read_image
+    from mvsformerpp.utils.atomic import atomic_open
 
     raw = out / "raw"
     raw.mkdir(parents=True, exist_ok=True)
@@ -63,8 +64,8 @@ def teacher_maps(kind, net, scene, out: Path, max_size: int, views: int):
         E = np.stack([scene.views[j].extrinsic for j in ids])
         t = time.perf_counter()
         depth, conf = predict(kind, net, imgs, K, E, v.depth_min, v.depth_max)
-        np.savez(tmp := cached.with_suffix(".next.npz"), depth=depth, confidence=conf, views=np.array(ids))
-        tmp.replace(cached)
+        with atomic_open(cached) as f:
+            np.savez(f, depth=depth, confidence=conf, views=np.array(ids))
         print(f"  {v.name}: {time.perf_counter() - t:.1f} s", flush=True)
         maps.append((depth, conf))
     return maps

@@ -131,7 +131,8 @@ def _mean(err: torch.Tensor, valid: torch.Tensor) -> torch.Tensor:
 def self_supervised_loss(outputs: dict, batch: dict, stages=("stage1", "stage2", "stage3", "stage4"),
                          agreement_weight: float = 1.0) -> tuple[torch.Tensor, dict]:
     """Photometric consistency of every stage's expected depth plus cross-view agreement of the last stage, over
-    the samples with ``batch["self_supervised"] > 0``; returns (loss, {"photometric": .., "agreement": ..}).
+    the samples with ``batch["self_supervised"] > 0``; returns (loss, {"photometric": .., "agreement": ..}), the
+    terms empty when the batch has no such sample.
 
     ``batch``: the training batch (``imgs`` normalised [B, V, 3, H, W], ``proj_matrices`` {stage: [B, V, 2, 4,
     4]}, ``self_supervised`` [B], ``pair_id`` [B]: samples with the same id >= 0 are two references of one
@@ -140,7 +141,7 @@ def self_supervised_loss(outputs: dict, batch: dict, stages=("stage1", "stage2",
     picked = batch["self_supervised"] > 0
     zero = sum(outputs[s]["prob_volume_pre"].sum() for s in stages if s in outputs) * 0.0
     if not picked.any():
-        return zero, {"photometric": 0.0, "agreement": 0.0}
+        return zero, {}
     imgs = unnormalize(batch["imgs"][picked].float())
     photo = []
     depths = {}

@@ -387,11 +387,11 @@ def _chunk_loss(model, chunk: dict, loss_weights, config: TrainConfig, device: t
             extra["stages"] = config.train_stages
         out = model(chunk["imgs"], chunk["proj_matrices"], chunk["depth_values"], **extra)
     loss, per_stage = cascade_loss(out, chunk["depth_gt"], chunk["mask"], loss_weights)
-    if config.self_supervised_weight > 0 and bool((chunk["self_supervised"] > 0).any()):
+    if config.self_supervised_weight > 0:
         stages = tuple(f"stage{s}" for s in range(1, config.train_stages + 1))
         ss_loss, parts = self_supervised_loss(out, chunk, stages)
         loss = loss + config.self_supervised_weight * ss_loss
-        per_stage = {**per_stage, **parts}
+        per_stage = {**per_stage, **parts}  # its terms only where the chunk has real samples
     return loss, per_stage
 
 
